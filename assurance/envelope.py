@@ -1,0 +1,456 @@
+"""The chunk envelope (CONTRACT.md §1): wire structs, the normalized chunk, and its decoders.
+
+Two doors lead in: a scenario or journal event (a JSON mapping, times in milliseconds) and a
+wire frame (MessagePack, times in integer nanoseconds, actions as raw bytes with dtype and
+shape). Both produce the same normalized :class:`Chunk` (times in ns on the sender's clock,
+actions as a read-only float64 array) or a :class:`MalformedChunk`. Structural problems are
+``MALFORMED``; a NaN or infinity is recorded per field and refused later as ``NONFINITE``, so
+that one bad chunk is a result with reason codes, never an exception.
+
+The client computes ``payload_hash`` itself over the canonical encoding of the identity fields
+and the actions; whatever hash a server claims is not trusted.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from enum import StrEnum
+from typing import Any
+
+import msgspec
+import numpy as np
+
+from assurance.clock import CLIENT_DOMAIN, ms_to_ns
+
+
+class ReplacementPolicy(StrEnum):
+    REPLACE = "replace"
+    APPEND = "append"
+    BLEND = "blend"
+
+
+# ---------------------------------------------------------------------------------------------
+# Wire structs (integer nanoseconds)
+# ---------------------------------------------------------------------------------------------
+
+
+class ArrayPayload(msgspec.Struct, frozen=True, kw_only=True):
+    """A numeric array as raw bytes: decoding is one copy, not one object per number."""
+
+    dtype: str
+    shape: tuple[int, ...]
+    data: bytes
+
+    @classmethod
+    def from_array(cls, array: np.ndarray) -> ArrayPayload:
+        contiguous = np.ascontiguousarray(array)
+        return cls(dtype=contiguous.dtype.str, shape=contiguous.shape, data=contiguous.tobytes())
+
+
+class StateFingerprint(msgspec.Struct, frozen=True, kw_only=True):
+    """The state a proposal assumed: the joint vector and a hash of it."""
+
+    q: tuple[float, ...]
+    hash: str = ""
+
+
+class WireChunk(msgspec.Struct, frozen=True, kw_only=True):
+    """A chunk on the wire. Optional fields are the ones a proposer may not know."""
+
+    chunk_id: str
+    sequence: int
+    queue_epoch: int
+    policy_checkpoint: str
+    config_hash: str
+    skill_version: str
+    task_phase: str
+    controller_mode: str
+    calibration_epoch: int | str
+    observation_id: str
+    first_action_time: int
+    action_dt: int
+    actions: ArrayPayload
+    skill: str | None = None
+    observation_event_time: int | None = None
+    observation_arrival_time: int | None = None
+    clock_domain: str = CLIENT_DOMAIN
+    inference_start: int | None = None
+    inference_end: int | None = None
+    server_send: int | None = None
+    max_observation_age: int | None = None
+    max_action_age: int | None = None
+    state_fingerprint: StateFingerprint | None = None
+    replacement_policy: ReplacementPolicy = ReplacementPolicy.REPLACE
+    fallback_id: str | None = None
+    phase_markers: tuple[int, ...] = ()
+    action_units: str | None = None
+    action_frame: str | None = None
+
+
+# ---------------------------------------------------------------------------------------------
+# The normalized chunk
+# ---------------------------------------------------------------------------------------------
+
+TIME_FIELDS = (
+    "observation_event_time",
+    "observation_arrival_time",
+    "inference_start",
+    "inference_end",
+    "server_send",
+    "first_action_time",
+)
+DURATION_FIELDS = ("action_dt", "max_observation_age", "max_action_age")
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class Chunk:
+    """A structurally valid chunk. Times are ns in ``clock_domain``; ``None`` when absent or
+    non-finite (the name of each non-finite field is in ``nonfinite``)."""
+
+    chunk_id: str
+    sequence: int
+    queue_epoch: int
+    policy_checkpoint: str
+    config_hash: str
+    skill: str | None
+    skill_version: str
+    task_phase: str
+    controller_mode: str
+    calibration_epoch: str
+    observation_id: str
+    clock_domain: str
+    client_receive: int
+    times: Mapping[str, int | None]
+    replacement_policy: ReplacementPolicy
+    fallback_id: str | None
+    phase_markers: tuple[int, ...]
+    action_units: str | None
+    action_frame: str | None
+    fingerprint_q: tuple[float, ...] | None
+    actions: np.ndarray
+    nonfinite: tuple[str, ...]
+    payload_hash: str
+
+    def time(self, name: str) -> int | None:
+        return self.times.get(name)
+
+    @property
+    def horizon(self) -> int:
+        return int(self.actions.shape[0])
+
+
+@dataclass(frozen=True, slots=True)
+class MalformedChunk:
+    """A chunk that could not be decoded; ``chunk_id`` is kept when it could be read."""
+
+    chunk_id: str | None
+    detail: str
+
+
+class _Malformed(Exception):
+    pass
+
+
+# ---------------------------------------------------------------------------------------------
+# Payload hash
+# ---------------------------------------------------------------------------------------------
+
+_hash_encoder = msgspec.msgpack.Encoder()
+
+
+def payload_hash(
+    identity: tuple[Any, ...], first_action_time: int | None, action_dt: int | None,
+    actions: np.ndarray,
+) -> str:
+    """BLAKE2b-128 over the canonical encoding of identity fields, action timing and actions."""
+    canonical = np.ascontiguousarray(actions, dtype="<f8")
+    body = _hash_encoder.encode(
+        [*identity, first_action_time, action_dt, list(canonical.shape), canonical.tobytes()]
+    )
+    return hashlib.blake2b(body, digest_size=16).hexdigest()
+
+
+def _identity(fields: Mapping[str, Any]) -> tuple[Any, ...]:
+    return tuple(
+        fields[name]
+        for name in (
+            "chunk_id", "sequence", "queue_epoch", "policy_checkpoint", "config_hash",
+            "skill_version", "task_phase", "controller_mode", "calibration_epoch",
+            "observation_id",
+        )
+    )
+
+
+# ---------------------------------------------------------------------------------------------
+# Decoding a scenario / journal event (milliseconds)
+# ---------------------------------------------------------------------------------------------
+
+_REQUIRED_TEXT = (
+    "policy_checkpoint", "config_hash", "skill_version", "task_phase", "controller_mode",
+    "observation_id",
+)
+_REQUIRED_INT = ("sequence", "queue_epoch")
+
+
+def decode_event_chunk(event: Mapping[str, Any], client_receive: int) -> Chunk | MalformedChunk:
+    """Decode the envelope fields of a scenario ``chunk`` event (times in milliseconds)."""
+    chunk_id = _salvage_id(event.get("chunk_id"))
+    try:
+        return _decode_mapping(event, client_receive)
+    except _Malformed as error:
+        return MalformedChunk(chunk_id, str(error))
+
+
+def _decode_mapping(event: Mapping[str, Any], client_receive: int) -> Chunk:
+    fields: dict[str, Any] = {"chunk_id": _text_or_int(event, "chunk_id")}
+    for name in _REQUIRED_INT:
+        fields[name] = _integer(event, name)
+    for name in _REQUIRED_TEXT:
+        fields[name] = _text_or_int(event, name)
+    fields["calibration_epoch"] = _text_or_int(event, "calibration_epoch")
+    nonfinite: list[str] = []
+    times: dict[str, int | None] = {}
+    for name in (*TIME_FIELDS, *DURATION_FIELDS):
+        times[name] = _milliseconds(event, name, nonfinite)
+    for name in ("first_action_time", "action_dt"):
+        if name not in event:
+            raise _Malformed(f"missing required field {name!r}")
+    if times["action_dt"] is not None and times["action_dt"] <= 0:
+        raise _Malformed("action_dt must be positive")
+    actions = _actions_from_lists(event.get("actions"), nonfinite)
+    _check_last_action_time(event, times, actions.shape[0], nonfinite)
+    return _build(event, fields, times, client_receive, actions, nonfinite)
+
+
+def _build(
+    event: Mapping[str, Any], fields: dict[str, Any], times: dict[str, int | None],
+    client_receive: int, actions: np.ndarray, nonfinite: list[str],
+) -> Chunk:
+    policy = _enum(event, "replacement_policy", ReplacementPolicy, ReplacementPolicy.REPLACE)
+    return Chunk(
+        **fields,
+        skill=_optional_text(event, "skill"),
+        clock_domain=_optional_text(event, "clock_domain") or CLIENT_DOMAIN,
+        client_receive=client_receive,
+        times=times,
+        replacement_policy=policy,
+        fallback_id=_optional_text(event, "fallback_id"),
+        phase_markers=_markers(event.get("phase_markers", ())),
+        action_units=_optional_text(event, "action_units"),
+        action_frame=_optional_text(event, "action_frame"),
+        fingerprint_q=_fingerprint(event.get("state_fingerprint"), nonfinite),
+        actions=actions,
+        nonfinite=tuple(nonfinite),
+        payload_hash=payload_hash(
+            _identity(fields), times["first_action_time"], times["action_dt"], actions
+        ),
+    )
+
+
+def _salvage_id(value: Any) -> str | None:
+    if isinstance(value, str):
+        return value
+    if isinstance(value, int) and not isinstance(value, bool):
+        return str(value)
+    return None
+
+
+def _text_or_int(event: Mapping[str, Any], name: str) -> str:
+    if name not in event:
+        raise _Malformed(f"missing required field {name!r}")
+    value = _salvage_id(event[name])
+    if value is None or value == "":
+        raise _Malformed(f"field {name!r} must be a non-empty string")
+    return value
+
+
+def _optional_text(event: Mapping[str, Any], name: str) -> str | None:
+    value = event.get(name)
+    if value is None:
+        return None
+    if not isinstance(value, str):
+        raise _Malformed(f"field {name!r} must be a string")
+    return value
+
+
+def _integer(event: Mapping[str, Any], name: str) -> int:
+    if name not in event:
+        raise _Malformed(f"missing required field {name!r}")
+    value = event[name]
+    if isinstance(value, bool) or not isinstance(value, int):
+        if isinstance(value, float) and math.isfinite(value) and value.is_integer():
+            return int(value)
+        raise _Malformed(f"field {name!r} must be an integer")
+    return value
+
+
+def _milliseconds(event: Mapping[str, Any], name: str, nonfinite: list[str]) -> int | None:
+    value = event.get(name)
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise _Malformed(f"field {name!r} must be a number of milliseconds")
+    if not math.isfinite(value):
+        nonfinite.append(name)
+        return None
+    return ms_to_ns(value)
+
+
+def _enum(event: Mapping[str, Any], name: str, enum: type[StrEnum], default: StrEnum) -> Any:
+    value = event.get(name)
+    if value is None:
+        return default
+    try:
+        return enum(value)
+    except ValueError:
+        raise _Malformed(f"field {name!r} has unknown value {value!r}") from None
+
+
+def _markers(value: Any) -> tuple[int, ...]:
+    if not isinstance(value, list | tuple) or not all(
+        isinstance(v, int) and not isinstance(v, bool) and v >= 0 for v in value
+    ):
+        raise _Malformed("field 'phase_markers' must be a list of action indices")
+    return tuple(value)
+
+
+def _fingerprint(value: Any, nonfinite: list[str]) -> tuple[float, ...] | None:
+    if value is None or isinstance(value, str):
+        return None
+    q = value.get("q") if isinstance(value, Mapping) else value
+    if q is None:
+        return None
+    if not isinstance(q, list | tuple) or not all(_is_number(v) for v in q):
+        raise _Malformed("field 'state_fingerprint' must carry a joint vector 'q'")
+    if not all(math.isfinite(v) for v in q):
+        nonfinite.append("state_fingerprint")
+    return tuple(float(v) for v in q)
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool)
+
+
+def _actions_from_lists(value: Any, nonfinite: list[str]) -> np.ndarray:
+    if not isinstance(value, list) or not value:
+        raise _Malformed("field 'actions' must be a non-empty list of action vectors")
+    width = len(value[0]) if isinstance(value[0], list) else -1
+    for row in value:
+        if not isinstance(row, list) or len(row) != width or width == 0:
+            raise _Malformed("field 'actions' must be a rectangular H x D list of numbers")
+        if not all(_is_number(v) for v in row):
+            raise _Malformed("field 'actions' holds a value that is not a number")
+    return _freeze(np.array(value, dtype=np.float64), nonfinite)
+
+
+def _freeze(actions: np.ndarray, nonfinite: list[str]) -> np.ndarray:
+    if not np.isfinite(actions).all():
+        nonfinite.append("actions")
+    actions.setflags(write=False)
+    return actions
+
+
+def _check_last_action_time(
+    event: Mapping[str, Any], times: dict[str, int | None], horizon: int, nonfinite: list[str]
+) -> None:
+    last = _milliseconds(event, "last_action_time", nonfinite)
+    first, dt = times["first_action_time"], times["action_dt"]
+    if last is None or first is None or dt is None:
+        return
+    if abs(first + (horizon - 1) * dt - last) > 1_000:  # 1 us: rounding of ms in files
+        raise _Malformed("last_action_time disagrees with first_action_time + (H-1)*action_dt")
+
+
+# ---------------------------------------------------------------------------------------------
+# Decoding a wire frame (nanoseconds)
+# ---------------------------------------------------------------------------------------------
+
+_wire_decoder = msgspec.msgpack.Decoder(WireChunk)
+_loose_decoder = msgspec.msgpack.Decoder()
+MAX_ACTION_BYTES = 1 << 20
+
+
+def decode_wire_chunk(frame: bytes, client_receive: int) -> Chunk | MalformedChunk:
+    """Decode a MessagePack chunk frame received at ``client_receive`` (client ns)."""
+    try:
+        wire = _wire_decoder.decode(frame)
+    except (msgspec.ValidationError, msgspec.DecodeError) as error:
+        return MalformedChunk(_salvage_wire_id(frame), _short(error))
+    try:
+        return from_wire(wire, client_receive)
+    except _Malformed as error:
+        return MalformedChunk(wire.chunk_id, str(error))
+
+
+def from_wire(wire: WireChunk, client_receive: int) -> Chunk:
+    nonfinite: list[str] = []
+    actions = _freeze(_array_from_payload(wire.actions), nonfinite)
+    if wire.action_dt <= 0:
+        raise _Malformed("action_dt must be positive")
+    fields = {name: getattr(wire, name) for name in ("chunk_id", *_REQUIRED_INT, *_REQUIRED_TEXT)}
+    fields["calibration_epoch"] = str(wire.calibration_epoch)
+    if any(fields[name] == "" for name in ("chunk_id", *_REQUIRED_TEXT)):
+        raise _Malformed("an identity field is empty")
+    times = {name: getattr(wire, name) for name in (*TIME_FIELDS, *DURATION_FIELDS)}
+    fingerprint = wire.state_fingerprint.q if wire.state_fingerprint else None
+    if fingerprint is not None and not all(math.isfinite(v) for v in fingerprint):
+        nonfinite.append("state_fingerprint")
+    return Chunk(
+        **fields, skill=wire.skill, clock_domain=wire.clock_domain,
+        client_receive=client_receive, times=times,
+        replacement_policy=wire.replacement_policy, fallback_id=wire.fallback_id,
+        phase_markers=wire.phase_markers, action_units=wire.action_units,
+        action_frame=wire.action_frame, fingerprint_q=fingerprint, actions=actions,
+        nonfinite=tuple(nonfinite),
+        payload_hash=payload_hash(
+            _identity(fields), wire.first_action_time, wire.action_dt, actions
+        ),
+    )
+
+
+def _array_from_payload(payload: ArrayPayload) -> np.ndarray:
+    try:
+        dtype = np.dtype(payload.dtype)
+    except TypeError:
+        raise _Malformed(f"actions have unknown dtype {payload.dtype!r}") from None
+    if dtype.kind != "f" or len(payload.shape) != 2 or min(payload.shape, default=0) <= 0:
+        raise _Malformed("actions must be a non-empty 2-D float array")
+    if len(payload.data) > MAX_ACTION_BYTES:
+        raise _Malformed("actions exceed the frame size limit")
+    if len(payload.data) != dtype.itemsize * payload.shape[0] * payload.shape[1]:
+        raise _Malformed("actions byte length does not match dtype and shape")
+    flat = np.frombuffer(payload.data, dtype=dtype)
+    return flat.reshape(payload.shape).astype(np.float64)
+
+
+def _salvage_wire_id(frame: bytes) -> str | None:
+    try:
+        loose = _loose_decoder.decode(frame)
+    except (msgspec.DecodeError, ValueError):
+        return None
+    return _salvage_id(loose.get("chunk_id")) if isinstance(loose, dict) else None
+
+
+def _short(error: Exception) -> str:
+    text = str(error)
+    return text if len(text) <= 160 else text[:157] + "..."
+
+
+def to_wire(chunk: Chunk) -> WireChunk:
+    """The wire form of a normalized chunk (used by the reference policy server and tests)."""
+    times = {name: chunk.times.get(name) for name in (*TIME_FIELDS, *DURATION_FIELDS)}
+    fingerprint = StateFingerprint(q=chunk.fingerprint_q) if chunk.fingerprint_q else None
+    return WireChunk(
+        chunk_id=chunk.chunk_id, sequence=chunk.sequence, queue_epoch=chunk.queue_epoch,
+        policy_checkpoint=chunk.policy_checkpoint, config_hash=chunk.config_hash,
+        skill=chunk.skill, skill_version=chunk.skill_version, task_phase=chunk.task_phase,
+        controller_mode=chunk.controller_mode, calibration_epoch=chunk.calibration_epoch,
+        observation_id=chunk.observation_id, clock_domain=chunk.clock_domain,
+        actions=ArrayPayload.from_array(chunk.actions), state_fingerprint=fingerprint,
+        replacement_policy=chunk.replacement_policy, fallback_id=chunk.fallback_id,
+        phase_markers=chunk.phase_markers, action_units=chunk.action_units,
+        action_frame=chunk.action_frame, **times,
+    )

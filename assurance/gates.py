@@ -1,0 +1,191 @@
+"""Admission gates (CONTRACT.md §3–§4): content, identity, context, time, state divergence.
+
+Every gate is a pure function of the chunk and an :class:`AdmissionContext` snapshot and returns
+the reason codes that apply; the caller evaluates all of them and lists every reason, so a
+refusal explains itself completely (the seed's stale chunk is ``PHASE_MISMATCH +
+STATE_DIVERGED``, not merely late). Feasibility is the last gate and lives with the merge, since
+it must run on the sequence that would actually be queued.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from assurance.clock import ClockInvalid, ClockMap
+from assurance.envelope import Chunk
+from assurance.handshake import AllowList, Session
+from assurance.identity import Seen
+from assurance.limits import JointLimits
+from assurance.policy import PhasePolicy
+from assurance.reasons import ReasonCode as R
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class AdmissionContext:
+    """What the client knows at the instant a chunk is admitted."""
+
+    t: int
+    session: Session | None
+    allowlist: AllowList
+    skill: str
+    skill_version: str
+    phase: str
+    controller_mode: str
+    calibration_epoch: str
+    action_dim: int
+    action_units: str
+    action_frame: str
+    queue_epoch: int
+    last_sequence: int | None
+    accepts_proposals: bool
+    policy: PhasePolicy
+    clock: ClockMap
+    limits: JointLimits
+    measured_q: np.ndarray
+
+
+def content_reasons(chunk: Chunk, ctx: AdmissionContext) -> list[R]:
+    reasons = []
+    if chunk.nonfinite:
+        reasons.append(R.NONFINITE)
+    width = chunk.actions.shape[1]
+    units_differ = chunk.action_units is not None and chunk.action_units != ctx.action_units
+    frame_differs = chunk.action_frame is not None and chunk.action_frame != ctx.action_frame
+    if width != ctx.action_dim or units_differ or frame_differs:
+        reasons.append(R.SCHEMA_MISMATCH)
+    return reasons
+
+
+def identity_reasons(
+    chunk: Chunk, seen: Seen, ctx: AdmissionContext, observed: bool
+) -> list[R]:
+    reasons = []
+    if seen is Seen.CONFLICT:
+        reasons.append(R.ID_CONFLICT)
+    if chunk.queue_epoch < ctx.queue_epoch:
+        reasons.append(R.OLD_QUEUE_EPOCH)
+    elif chunk.queue_epoch > ctx.queue_epoch:
+        reasons.append(R.FUTURE_QUEUE_EPOCH)
+    elif ctx.last_sequence is not None and chunk.sequence <= ctx.last_sequence:
+        reasons.append(R.REORDERED)
+    if not observed:
+        reasons.append(R.UNKNOWN_OBSERVATION)
+    return reasons
+
+
+def context_reasons(chunk: Chunk, ctx: AdmissionContext) -> list[R]:
+    reasons = []
+    session = ctx.session
+    if session is None:
+        reasons.append(R.HANDSHAKE_REQUIRED)
+    checkpoint = session.policy_checkpoint if session else chunk.policy_checkpoint
+    config = session.config_hash if session else chunk.config_hash
+    if chunk.policy_checkpoint != checkpoint or (chunk.policy_checkpoint, config) not in (
+        ctx.allowlist
+    ):
+        reasons.append(R.CHECKPOINT_NOT_ALLOWED)
+    if chunk.config_hash != config:
+        reasons.append(R.CONFIG_MISMATCH)
+    skill_differs = chunk.skill is not None and chunk.skill != ctx.skill
+    if skill_differs or chunk.skill_version != ctx.skill_version:
+        reasons.append(R.SKILL_MISMATCH)
+    if chunk.task_phase != ctx.phase:
+        reasons.append(R.PHASE_MISMATCH)
+    if chunk.controller_mode != ctx.controller_mode:
+        reasons.append(R.CONTROLLER_MODE_MISMATCH)
+    if chunk.calibration_epoch != ctx.calibration_epoch:
+        reasons.append(R.CALIBRATION_MISMATCH)
+    if not ctx.accepts_proposals:
+        reasons.append(R.NO_AUTHORITY)
+    return reasons
+
+
+@dataclass(frozen=True, slots=True)
+class Timing:
+    """The chunk's schedule on the client's clock, and what the time gates found."""
+
+    reasons: tuple[R, ...]
+    first_due: int | None = None
+    """Due time of action 0 on the client's clock (None when it cannot be known)."""
+    late: int = 0
+    """Actions whose deadline passed before the chunk was ready (negative slack)."""
+    runnable_until: int = 0
+    """Index of the first action already too old at its own due time."""
+    expires_at: int = 0
+    """Client time from which any action of this chunk is too old to run."""
+    trim: int = 0
+
+
+def time_verdict(chunk: Chunk, ctx: AdmissionContext, t_obs: int | None) -> Timing:
+    """Clock provenance, observation staleness, expiry and trimming (CONTRACT.md §2)."""
+    try:
+        offset, uncertainty = ctx.clock.translator(chunk.clock_domain)
+    except ClockInvalid:
+        return Timing((R.CLOCK_INVALID,))
+    first, dt = chunk.time("first_action_time"), chunk.time("action_dt")
+    if t_obs is None or first is None or dt is None:
+        return Timing(())  # unknown observation or non-finite schedule: refused elsewhere
+    reasons: list[R] = []
+    max_obs_age = _stricter(ctx.policy.max_observation_age_ns, chunk.time("max_observation_age"))
+    started = chunk.time("inference_start")
+    if started is not None and started + offset - t_obs + uncertainty > max_obs_age:
+        reasons.append(R.OBSERVATION_STALE)
+    max_age = _stricter(ctx.policy.max_action_age_ns, chunk.time("max_action_age"))
+    first_due = first + offset
+    horizon = chunk.horizon
+    late = min(horizon, max(0, -(-(ctx.t - first_due) // dt)))
+    expires_at = t_obs + max_age - uncertainty + 1
+    runnable_until = min(horizon, max(0, -(-(expires_at - first_due) // dt)))
+    trim = 0
+    if late >= runnable_until:
+        reasons.append(R.EXPIRED)
+    elif late > 0:
+        if not ctx.policy.trim:
+            reasons.append(R.EXPIRED)
+        elif _trim_deletes_event(chunk, late, ctx.limits):
+            reasons.append(R.TRIM_FORBIDDEN)
+        else:
+            trim = late
+    return Timing(tuple(reasons), first_due, late, runnable_until, expires_at, trim)
+
+
+def _stricter(phase_bound: int, proposer_bound: int | None) -> int:
+    return phase_bound if proposer_bound is None else min(phase_bound, proposer_bound)
+
+
+def _trim_deletes_event(chunk: Chunk, late: int, limits: JointLimits) -> bool:
+    """True if dropping actions ``0..late-1`` would delete a gripper event or a phase marker."""
+    if any(marker < late for marker in chunk.phase_markers):
+        return True
+    grip = limits.gripper_index
+    if grip is None or late < 2 or grip >= chunk.actions.shape[1]:
+        return False
+    prefix = chunk.actions[:late, grip]
+    return bool(np.any(np.abs(np.diff(prefix)) > limits.gripper_event_threshold))
+
+
+def divergence(chunk: Chunk, ctx: AdmissionContext, first_due: int | None) -> float:
+    """Max-abs joint difference between the measured state and the action scheduled for now.
+
+    The action scheduled for the admission instant is used, or the first action if the chunk
+    starts later; the gripper dimension is left out.
+    """
+    dt = chunk.time("action_dt")
+    index = 0
+    if first_due is not None and dt is not None and ctx.t > first_due:
+        index = min(chunk.horizon - 1, (ctx.t - first_due) // dt)
+    mask = ctx.limits.arm_mask
+    if chunk.actions.shape[1] != mask.shape[0] or ctx.measured_q.shape != mask.shape:
+        return 0.0
+    diff = np.abs(chunk.actions[index] - ctx.measured_q)[mask]
+    return float(diff.max()) if diff.size else 0.0
+
+
+def divergence_reasons(chunk: Chunk, ctx: AdmissionContext, first_due: int | None) -> list[R]:
+    if chunk.nonfinite or chunk.actions.shape[1] != ctx.action_dim:
+        return []
+    if divergence(chunk, ctx, first_due) > ctx.policy.max_divergence:
+        return [R.STATE_DIVERGED]
+    return []

@@ -1,0 +1,70 @@
+"""Identity memory: which chunks this client has seen, across reconnections.
+
+Duplicates are recognised by ``(chunk_id, payload_hash)`` and ignored idempotently; the same
+``chunk_id`` with another payload is an ``ID_CONFLICT``. The memory is bounded (oldest forgotten
+first) and deliberately survives reconnection and epoch changes, so that a resend after a
+reconnect is still recognised as the chunk it is.
+"""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+from enum import StrEnum
+
+
+class Seen(StrEnum):
+    NEW = "new"
+    DUPLICATE = "duplicate"
+    CONFLICT = "conflict"
+
+
+class ChunkMemory:
+    def __init__(self, capacity: int = 4096) -> None:
+        if capacity <= 0:
+            raise ValueError("capacity must be positive")
+        self.capacity = capacity
+        self._hashes: OrderedDict[str, str] = OrderedDict()
+
+    def classify(self, chunk_id: str, payload_hash: str) -> Seen:
+        known = self._hashes.get(chunk_id)
+        if known is None:
+            return Seen.NEW
+        return Seen.DUPLICATE if known == payload_hash else Seen.CONFLICT
+
+    def remember(self, chunk_id: str, payload_hash: str) -> None:
+        """Record the first payload seen under ``chunk_id``; a conflict never overwrites it."""
+        if chunk_id in self._hashes:
+            return
+        self._hashes[chunk_id] = payload_hash
+        if len(self._hashes) > self.capacity:
+            self._hashes.popitem(last=False)
+
+    def __len__(self) -> int:
+        return len(self._hashes)
+
+
+class ObservationLog:
+    """The client's own record of the observations it sent in this session (bounded).
+
+    This record, not the server's claim, is authoritative for an observation's time.
+    """
+
+    def __init__(self, capacity: int = 1024) -> None:
+        self.capacity = capacity
+        self._times: OrderedDict[str, int] = OrderedDict()
+        self.latest: str | None = None
+
+    def record(self, observation_id: str, t_event: int) -> None:
+        self._times[observation_id] = t_event
+        self._times.move_to_end(observation_id)
+        self.latest = observation_id
+        if len(self._times) > self.capacity:
+            self._times.popitem(last=False)
+
+    def time_of(self, observation_id: str) -> int | None:
+        return self._times.get(observation_id)
+
+    def clear(self) -> None:
+        """A new session: observations of the old one are no longer this client's."""
+        self._times.clear()
+        self.latest = None

@@ -1,0 +1,134 @@
+"""Turning an admissible chunk into queued rows: trim, replace, append or blend, then project.
+
+The merge is planned on copies and only committed by the caller, so a chunk that fails its last
+gate leaves the queue exactly as it was. Feasibility always runs on the sequence that would be
+queued — after trimming, after replacement (the new first row follows a different predecessor)
+and after blending (the mean of two feasible actions need not be feasible).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from assurance.envelope import Chunk, ReplacementPolicy
+from assurance.gates import Timing
+from assurance.limits import JointLimits
+from assurance.projection import Projection, Reference, project
+from assurance.queue import ActionQueue, Segment
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class MergePlan:
+    segment: Segment
+    merge: ReplacementPolicy
+    cut_at: int | None
+    """Rows due at or after this time are swapped out when the plan is committed."""
+    displaced: int
+    """Rows of earlier chunks that the swap removes."""
+    blended: bool
+    projection: Projection
+    older_than_queue: bool
+    """The chunk would displace rows conditioned on a newer observation."""
+    trimmed: int
+    """Late actions dropped from the front of the chunk."""
+
+    def commit(self, queue: ActionQueue) -> None:
+        if self.cut_at is not None:
+            queue.cut_from(self.cut_at)
+        if self.segment.rows:
+            queue.push(self.segment)
+
+
+@dataclass(frozen=True, slots=True)
+class MergeInputs:
+    chunk: Chunk
+    timing: Timing
+    t_obs: int
+    epoch: int
+    blend_allowed: bool
+    hold_q: np.ndarray
+    """Where the robot is being held (or measured) if no queued row precedes the chunk."""
+
+
+def plan_merge(queue: ActionQueue, inputs: MergeInputs, limits: JointLimits) -> MergePlan:
+    chunk, timing = inputs.chunk, inputs.timing
+    dt = int(chunk.time("action_dt") or 1)
+    first_due = int(timing.first_due or 0) + timing.trim * dt
+    rows = chunk.actions[timing.trim:]
+    policy = chunk.replacement_policy
+    if policy is ReplacementPolicy.BLEND and not inputs.blend_allowed:
+        policy = ReplacementPolicy.REPLACE
+    cut_at: int | None = first_due
+    skip, blended, older = 0, False, False
+    if policy is ReplacementPolicy.APPEND:
+        cut_at = None
+        end = queue.last_end()
+        if end is not None and end > first_due:
+            skip = min(rows.shape[0], -(-(end - first_due) // dt))
+    else:
+        newest = queue.obs_time_from(first_due)
+        older = newest is not None and newest > inputs.t_obs
+        if policy is ReplacementPolicy.BLEND:
+            rows, blended = _blend(queue, rows, first_due, dt)
+    rows, first_due = rows[skip:], first_due + skip * dt
+    displaced = _rows_from(queue, cut_at) if cut_at is not None else 0
+    reference = _reference(queue, first_due, dt, inputs.hold_q, cut_at)
+    projection = project(rows, reference, dt * 1e-9, limits) if rows.shape[0] else _empty(rows)
+    segment = _segment(inputs, projection, reference, first_due, dt, timing.trim + skip)
+    return MergePlan(segment, policy, cut_at, displaced, blended, projection, older, timing.trim)
+
+
+def _blend(
+    queue: ActionQueue, rows: np.ndarray, first_due: int, dt: int
+) -> tuple[np.ndarray, bool]:
+    """Cross-fade from the queued rows to the new ones over their overlap."""
+    old = [queue.value_at(first_due + j * dt) for j in range(rows.shape[0])]
+    overlap = [j for j, value in enumerate(old) if value is not None]
+    if not overlap:
+        return rows, False
+    mixed = rows.copy()
+    for rank, j in enumerate(overlap, start=1):
+        weight = rank / (len(overlap) + 1)
+        mixed[j] = (1.0 - weight) * old[j] + weight * rows[j]
+    return mixed, True
+
+
+def _reference(
+    queue: ActionQueue, first_due: int, dt: int, hold_q: np.ndarray, cut_at: int | None
+) -> Reference:
+    """The setpoint the first new row follows: the queued row before it, if contiguous."""
+    before = queue.predecessor(first_due if cut_at is None else min(first_due, cut_at))
+    if before is not None:
+        seg = before.segment
+        contiguous = before.due + seg.dt >= first_due and before.due >= first_due - 2 * dt
+        if contiguous:
+            step = before.segment.step_into(before.row) * (dt / seg.dt)
+            return Reference(before.q, step)
+    return Reference(hold_q, np.zeros_like(hold_q))
+
+
+def _rows_from(queue: ActionQueue, t: int) -> int:
+    total = 0
+    for seg in queue.segments:
+        if seg.end > t:
+            total += seg.rows - max(0, min(seg.rows, -(-(t - seg.first_due) // seg.dt)))
+    return total
+
+
+def _segment(
+    inputs: MergeInputs, projection: Projection, reference: Reference, first_due: int, dt: int,
+    first_index: int,
+) -> Segment:
+    actions = projection.actions
+    ref_step = actions[0] - reference.q if actions.shape[0] else np.zeros_like(reference.q)
+    return Segment(
+        chunk_id=inputs.chunk.chunk_id, epoch=inputs.epoch, phase=inputs.chunk.task_phase,
+        t_obs=inputs.t_obs, expires_at=inputs.timing.expires_at, first_due=first_due, dt=dt,
+        actions=actions, first_index=first_index, ref_step=ref_step,
+    )
+
+
+def _empty(rows: np.ndarray) -> Projection:
+    return Projection(rows, np.zeros(0), True)

@@ -1,0 +1,87 @@
+"""The bounded set of reason codes (CONTRACT.md §3), plus the few this project added.
+
+Values are stable on the wire and in journals: never rename or reuse one. The order of
+definition is the canonical order in which a refusal lists its reasons.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from enum import StrEnum
+
+
+class ReasonCode(StrEnum):
+    # content
+    MALFORMED = "MALFORMED"
+    NONFINITE = "NONFINITE"
+    SCHEMA_MISMATCH = "SCHEMA_MISMATCH"
+    # identity
+    DUPLICATE = "DUPLICATE"
+    ID_CONFLICT = "ID_CONFLICT"
+    REORDERED = "REORDERED"
+    OLD_QUEUE_EPOCH = "OLD_QUEUE_EPOCH"
+    UNKNOWN_OBSERVATION = "UNKNOWN_OBSERVATION"
+    # session and context
+    HANDSHAKE_REQUIRED = "HANDSHAKE_REQUIRED"
+    PROTOCOL_MISMATCH = "PROTOCOL_MISMATCH"
+    CHECKPOINT_NOT_ALLOWED = "CHECKPOINT_NOT_ALLOWED"
+    CONFIG_MISMATCH = "CONFIG_MISMATCH"
+    SKILL_MISMATCH = "SKILL_MISMATCH"
+    PHASE_MISMATCH = "PHASE_MISMATCH"
+    CONTROLLER_MODE_MISMATCH = "CONTROLLER_MODE_MISMATCH"
+    CALIBRATION_MISMATCH = "CALIBRATION_MISMATCH"
+    # time
+    CLOCK_INVALID = "CLOCK_INVALID"
+    OBSERVATION_STALE = "OBSERVATION_STALE"
+    EXPIRED = "EXPIRED"
+    TRIM_FORBIDDEN = "TRIM_FORBIDDEN"
+    # state and feasibility
+    STATE_DIVERGED = "STATE_DIVERGED"
+    INFEASIBLE = "INFEASIBLE"
+    # authority
+    NO_AUTHORITY = "NO_AUTHORITY"
+    # fallback and FSM triggers
+    LINK_LOST = "LINK_LOST"
+    UNDERRUN = "UNDERRUN"
+    OOD = "OOD"
+    CONTACT_ANOMALY = "CONTACT_ANOMALY"
+    CONTROLLER_REJECT = "CONTROLLER_REJECT"
+    CONTROLLER_FAULT = "CONTROLLER_FAULT"
+    WATCHDOG = "WATCHDOG"
+    HUMAN_TAKEOVER = "HUMAN_TAKEOVER"
+    E_STOP = "E_STOP"
+    RECOVERY_ACCEPTED = "RECOVERY_ACCEPTED"
+    GUARD_FAILED = "GUARD_FAILED"
+    # --- added by warden (docs/contract.md, "Added reason codes") ---
+    FUTURE_QUEUE_EPOCH = "FUTURE_QUEUE_EPOCH"
+    """A chunk names a queue epoch this client has not issued yet."""
+    GUARD_PASSED = "GUARD_PASSED"
+    """A task transition whose guard held (the trigger of an accepted task transition)."""
+    HANDSHAKE_ACCEPTED = "HANDSHAKE_ACCEPTED"
+    """A new handshake was accepted: the task FSM enters VALIDATE."""
+    HOLD_REQUESTED = "HOLD_REQUESTED"
+    """The proposer (or the task FSM) asked for SAFE_HOLD."""
+    OPERATOR_RELEASE = "OPERATOR_RELEASE"
+    """The operator ended a takeover: authority goes to a validated hold, not to the policy."""
+    OPERATOR_RESET = "OPERATOR_RESET"
+    """The operator reset an E_STOP: the runtime leaves it toward a validated hold."""
+    PHASE_OWNER = "PHASE_OWNER"
+    """The phase contract gives motion to a classical owner (planner, contact law, evaluator)."""
+
+
+_ORDER = {code: index for index, code in enumerate(ReasonCode)}
+
+# Contract codes only; the handshake's reason-code table is the full enum.
+CONTRACT_CODES: frozenset[ReasonCode] = frozenset(
+    code for code in ReasonCode if _ORDER[code] <= _ORDER[ReasonCode.GUARD_FAILED]
+)
+
+
+def canonical(codes: Iterable[ReasonCode]) -> tuple[ReasonCode, ...]:
+    """Deduplicate and sort reason codes into the canonical order of the enum."""
+    return tuple(sorted(set(codes), key=_ORDER.__getitem__))
+
+
+def is_known(value: object) -> bool:
+    """True when ``value`` names a reason code of this build."""
+    return isinstance(value, str) and value in ReasonCode.__members__

@@ -1,0 +1,1 @@
+"""The plant driver: the same driver protocol, talking to an in-process plant."""

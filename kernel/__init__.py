@@ -1,0 +1,1 @@
+"""The kernel: the deterministic core runtime and the thin asyncio shell around it."""

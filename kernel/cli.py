@@ -1,0 +1,91 @@
+"""The ``warden`` command line.
+
+    warden replay SCENARIO [--out FILE] [--pretty] [--check]
+
+Exit codes: 0 the command ran (a refused chunk is a result, not an error); 1 ``--check`` found
+a broken expectation; 2 invalid input (the message names the file, the place and the field).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+
+import msgspec
+
+from kernel.core.lines import encode
+from kernel.replay import as_dict, check_expectations, replay
+from kernel.scenario import ScenarioError, load_scenario
+from kernel.timeline import render
+
+EXIT_OK, EXIT_CHECK_FAILED, EXIT_INVALID = 0, 1, 2
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = _parser()
+    args = parser.parse_args(argv)
+    try:
+        return args.handler(args)
+    except ScenarioError as error:
+        print(f"warden: invalid input: {error}", file=sys.stderr)
+        return EXIT_INVALID
+    except BrokenPipeError:
+        return EXIT_OK
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="warden",
+        description="Admit learned action chunks through identity, time, context, divergence "
+                    "and feasibility gates; hand motion to the right owner.",
+    )
+    commands = parser.add_subparsers(dest="command", required=True)
+    rep = commands.add_parser(
+        "replay", help="replay a scenario or run journal on a virtual clock",
+        description="Print the decision log of SCENARIO as JSON lines.",
+    )
+    rep.add_argument("scenario", help="scenario file (JSON) or run journal (JSON lines)")
+    rep.add_argument("--out", help="also write the decision log to this file")
+    rep.add_argument("--pretty", action="store_true", help="print a readable timeline instead")
+    rep.add_argument("--check", action="store_true",
+                     help="verify the scenario's 'expect'/'forbid' matchers (exit 1 if broken)")
+    rep.set_defaults(handler=_replay)
+    return parser
+
+
+def _replay(args: argparse.Namespace) -> int:
+    scenario = load_scenario(args.scenario)
+    encoded = [encode(line) for line in replay(scenario)]
+    if args.out:
+        try:
+            with open(args.out, "wb") as out:
+                out.writelines(line + b"\n" for line in encoded)
+        except OSError as error:
+            raise ScenarioError(f"{args.out}: cannot write: {error.strerror}") from None
+    decoded = [msgspec.json.decode(line) for line in encoded] if (
+        args.pretty or args.check) else []
+    if args.pretty:
+        print(f"# {scenario.name} ({scenario.path})")
+        for text in render(decoded):
+            print(text)
+    else:
+        sys.stdout.buffer.writelines(line + b"\n" for line in encoded)
+        sys.stdout.flush()
+    return _check(scenario, decoded) if args.check else EXIT_OK
+
+
+def _check(scenario, decoded) -> int:  # type: ignore[no-untyped-def]
+    problems = check_expectations(scenario, decoded)
+    for problem in problems:
+        print(f"warden: {scenario.path}: {problem}", file=sys.stderr)
+    if not scenario.expect and not scenario.forbid:
+        print(f"warden: {scenario.path}: no expectations to check", file=sys.stderr)
+    return EXIT_CHECK_FAILED if problems else EXIT_OK
+
+
+__all__ = ["as_dict", "main"]
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,167 @@
+"""Admission: every gate, then the merge, then one decision line (CONTRACT.md §3–§4).
+
+Order of work for one chunk: decode result → duplicate check (a duplicate is ignored and changes
+nothing) → content, identity, context, time and divergence gates → merge plan and projection
+(feasibility) → decision. Only an admitted chunk touches the queue, and it does so by one
+commit of a plan built beforehand.
+"""
+
+from __future__ import annotations
+
+from assurance.clock import ns_to_ms
+from assurance.envelope import Chunk, MalformedChunk, ReplacementPolicy
+from assurance.fallback import IRRELEVANT, refusal_trigger
+from assurance.gates import (
+    Timing,
+    content_reasons,
+    context_reasons,
+    divergence,
+    divergence_reasons,
+    identity_reasons,
+    time_verdict,
+)
+from assurance.identity import Seen
+from assurance.merge import MergeInputs, MergePlan, plan_merge
+from assurance.reasons import ReasonCode as R
+from assurance.reasons import canonical
+from kernel.core.lines import ChunkLine
+from kernel.core.state import CoreState
+
+_PROJECTION_DIGITS = 9
+
+
+def admit(state: CoreState, chunk: Chunk | MalformedChunk) -> None:
+    if isinstance(chunk, MalformedChunk):
+        _decide(state, chunk.chunk_id, (R.MALFORMED,), detail=chunk.detail)
+        return
+    seen = state.memory.classify(chunk.chunk_id, chunk.payload_hash)
+    if seen is Seen.DUPLICATE:
+        _ignore_duplicate(state, chunk)
+        return
+    state.memory.remember(chunk.chunk_id, chunk.payload_hash)
+    _evaluate(state, chunk, seen)
+
+
+def _ignore_duplicate(state: CoreState, chunk: Chunk) -> None:
+    """A duplicate was decided already: ignore it, and say only what identifies it."""
+    reasons = [R.DUPLICATE]
+    if chunk.queue_epoch < state.epoch:
+        reasons.append(R.OLD_QUEUE_EPOCH)
+    elif chunk.queue_epoch > state.epoch:
+        reasons.append(R.FUTURE_QUEUE_EPOCH)
+    state.emit(ChunkLine(
+        t=state.t_ms, chunk_id=chunk.chunk_id, decision="ignored", reasons=canonical(reasons),
+        queue_epoch=state.epoch, queue_depth=state.queue.pending_rows(state.t),
+    ))
+
+
+def _evaluate(state: CoreState, chunk: Chunk, seen: Seen) -> None:
+    ctx = state.context()
+    t_obs = state.observations.time_of(chunk.observation_id)
+    reasons = content_reasons(chunk, ctx)
+    reasons += identity_reasons(chunk, seen, ctx, observed=t_obs is not None)
+    reasons += context_reasons(chunk, ctx)
+    timing = time_verdict(chunk, ctx, t_obs)
+    reasons += timing.reasons
+    reasons += divergence_reasons(chunk, ctx, timing.first_due)
+    plan = _plan(state, chunk, timing, t_obs) if _can_plan(chunk, timing, reasons) else None
+    if plan is not None:
+        reasons += _feasibility_reasons(state, plan)
+    extras = _measurements(state, chunk, timing, t_obs, plan)
+    if reasons:
+        _decide(state, chunk.chunk_id, canonical(reasons), **extras)
+        return
+    _commit(state, chunk, plan, t_obs, extras)
+
+
+def _can_plan(chunk: Chunk, timing: Timing, reasons: list[R]) -> bool:
+    """Feasibility is judged only for a chunk that could be merged into the current queue.
+
+    It needs a finite chunk of the right width and a schedule whose late prefix could be
+    trimmed; a chunk made for another phase, epoch, session or owner is not projected either,
+    because a projection against a context it was not made for would mean nothing (its refusal
+    already says why).
+    """
+    structural = {R.NONFINITE, R.SCHEMA_MISMATCH, R.CLOCK_INVALID, R.UNKNOWN_OBSERVATION,
+                  R.EXPIRED, R.TRIM_FORBIDDEN}
+    if (structural | IRRELEVANT) & set(reasons) or timing.first_due is None:
+        return False
+    return timing.late < timing.runnable_until or chunk.horizon == 0
+
+
+def _plan(state: CoreState, chunk: Chunk, timing: Timing, t_obs: int | None) -> MergePlan:
+    hold = state.hold_q if state.hold_q is not None else state.hold_target()
+    inputs = MergeInputs(
+        chunk=chunk, timing=timing, t_obs=int(t_obs or 0), epoch=state.epoch,
+        blend_allowed=state.card.policy.blend, hold_q=hold,
+    )
+    return plan_merge(state.queue, inputs, state.config.limits)
+
+
+def _feasibility_reasons(state: CoreState, plan: MergePlan) -> list[R]:
+    reasons = []
+    projection = plan.projection
+    if not projection.recoverable or projection.max_distance > state.card.policy.max_projection:
+        reasons.append(R.INFEASIBLE)
+    if plan.older_than_queue:
+        reasons.append(R.REORDERED)
+    return reasons
+
+
+def _measurements(
+    state: CoreState, chunk: Chunk, timing: Timing, t_obs: int | None, plan: MergePlan | None
+) -> dict[str, object]:
+    extras: dict[str, object] = {}
+    if t_obs is not None:
+        extras["observation_age_ms"] = ns_to_ms(state.t - t_obs)
+    if plan is not None:
+        extras["projection_distance"] = round(plan.projection.max_distance, _PROJECTION_DIGITS)
+    if not chunk.nonfinite and chunk.actions.shape[1] == state.config.client.action_dim:
+        extras["divergence"] = round(divergence(chunk, state.context(), timing.first_due),
+                                     _PROJECTION_DIGITS)
+    return extras
+
+
+def _commit(
+    state: CoreState, chunk: Chunk, plan: MergePlan | None, t_obs: int | None,
+    extras: dict[str, object],
+) -> None:
+    if plan is None or t_obs is None:  # unreachable: every gate passed, so a plan exists
+        _decide(state, chunk.chunk_id, (R.MALFORMED,), detail="no merge plan")
+        return
+    plan.commit(state.queue)
+    state.last_sequence = chunk.sequence
+    state.fallback.clear_debounce()
+    if state.watermarks is not None:
+        state.watermarks.answered()
+        state.watermarks.record_round_trip(state.t - t_obs)
+    decision = _decision_name(plan)
+    state.emit(ChunkLine(
+        t=state.t_ms, chunk_id=chunk.chunk_id, decision=decision, reasons=(),
+        queue_epoch=state.epoch, queue_depth=state.queue.pending_rows(state.t),
+        trimmed=plan.trimmed or None,
+        merge=plan.merge, displaced=plan.displaced or None, **extras,
+    ))
+
+
+def _decision_name(plan: MergePlan) -> str:
+    if plan.trimmed:
+        return "trimmed"
+    if plan.blended:
+        return "blended"
+    if plan.displaced and plan.merge is not ReplacementPolicy.APPEND:
+        return "replaced"
+    return "accepted"
+
+
+def _decide(
+    state: CoreState, chunk_id: str | None, reasons: tuple[R, ...], **extras: object
+) -> None:
+    """Log a refusal and raise the fallback trigger it implies, if any."""
+    state.emit(ChunkLine(
+        t=state.t_ms, chunk_id=chunk_id, decision="rejected", reasons=reasons,
+        queue_epoch=state.epoch, queue_depth=state.queue.pending_rows(state.t), **extras,
+    ))
+    trigger = refusal_trigger(reasons)
+    if trigger is not None:
+        state.fire(trigger)

@@ -1,0 +1,215 @@
+"""Who owns motion: handlers for every event that is not a chunk or a tick.
+
+Link, handshake, operator, controller, phase, force and OOD events all end here. Each one either
+raises a fallback trigger (the table in :mod:`assurance.fallback` decides whether it applies),
+asks the task FSM for a transition (evidence decides), or performs a recovery whose precondition
+is checked and logged.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from assurance.clock import ClockSync
+from assurance.fallback import Mode, QueueAction
+from assurance.handshake import evaluate
+from assurance.reasons import ReasonCode as R
+from kernel.core.events import (
+    ClockSyncEvent,
+    ControllerEvent,
+    ForceEvent,
+    HandshakeEvent,
+    LinkEvent,
+    ObservationEvent,
+    OodEvent,
+    OperatorEvent,
+    PhaseEvent,
+    StateEvent,
+)
+from kernel.core.lines import HandshakeLine
+from kernel.core.state import CoreState
+from skills.phases import TaskPhase
+from skills.task_fsm import Requester
+
+_POSITION_TOLERANCE = 1e-6
+
+
+def on_state(state: CoreState, event: StateEvent) -> None:
+    q = np.asarray(event.q, dtype=float)
+    if not np.isfinite(q).all():
+        # Invalid feedback: keep the last valid measurement, stop trusting the controller.
+        state.controller_ok = False
+        state.fire(R.CONTROLLER_FAULT)
+        return
+    if q.shape[0] < state.measured_q.shape[0]:  # a state without the gripper keeps its last value
+        q = np.concatenate([q, state.measured_q[q.shape[0]:]])
+    state.measured_q = q
+    state.measured_t = state.t
+    if event.force_residual is not None:
+        _check_force(state, event.force_residual)
+
+
+def on_observation(state: CoreState, event: ObservationEvent) -> None:
+    state.observations.record(event.observation_id, state.t)
+
+
+def on_force(state: CoreState, event: ForceEvent) -> None:
+    _check_force(state, event.residual)
+
+
+def _check_force(state: CoreState, residual: float) -> None:
+    band = state.card.policy.force_band
+    if band is not None and not band.contains(residual):
+        state.fire(R.CONTACT_ANOMALY)
+
+
+def on_ood(state: CoreState, event: OodEvent) -> None:
+    threshold = state.card.policy.ood_threshold
+    if threshold is not None and event.score > threshold:
+        state.fire(R.OOD)
+
+
+def on_clock_sync(state: CoreState, event: ClockSyncEvent) -> None:
+    state.clock = state.clock.with_sync(ClockSync(event.domain, event.offset, event.round_trip))
+
+
+def on_phase(state: CoreState, event: PhaseEvent) -> None:
+    target = TaskPhase(event.to)
+    by = Requester(event.by)
+    fsm_authority = state.fallback.mode in (Mode.RUNNING, Mode.DEGRADED)
+    before = state.task.phase
+    decision = state.task.request(target, event.evidence, by, fsm_authority)
+    state.log_task(decision)
+    if not decision.accepted:
+        return
+    if target is TaskPhase.SAFE_HOLD and state.fire(R.HOLD_REQUESTED):
+        return  # the fallback transition purged the queue already
+    if before != state.task.phase:
+        state.purge(decision.trigger)  # actions proposed for the old phase never run in the new
+        state.hold_q = None
+
+
+def on_link(state: CoreState, event: LinkEvent) -> None:
+    if event.status == "up":
+        state.link_up = True
+        return
+    if not state.link_up and state.session is None:
+        return
+    state.link_up = False
+    state.session = None
+    state.observations.clear()
+    if not state.fire(R.LINK_LOST):
+        state.new_epoch(R.LINK_LOST)  # already in fallback: the session still ends here
+
+
+def on_handshake(state: CoreState, event: HandshakeEvent) -> None:
+    hello = state.config.client.hello(state.epoch)
+    decision, session = evaluate(hello, event.offer, state.config.allowlist)
+    state.link_up = True
+    state.emit(HandshakeLine(
+        t=state.t_ms, decision=decision.decision, fingerprint=decision.fingerprint,
+        reasons=decision.reasons, protocol=decision.protocol, queue_epoch=state.epoch,
+    ))
+    state.session = session
+    if session is None:
+        _rejected(state, decision.reasons)
+        return
+    if state.fallback.mode is Mode.DEGRADED:
+        state.log_task(state.task.begin_validation(R.HANDSHAKE_ACCEPTED))
+        validate(state)
+    elif state.fallback.mode is Mode.RUNNING:
+        state.new_epoch(R.HANDSHAKE_ACCEPTED)  # a new session is a reconnection: new epoch
+
+
+def _rejected(state: CoreState, reasons: tuple[str, ...]) -> None:
+    first = R(reasons[0]) if reasons else R.HANDSHAKE_REQUIRED
+    if not state.fire(first):
+        state.purge(first)  # "REJECT ... with an empty queue"
+
+
+def validate(state: CoreState) -> None:
+    """VALIDATE: the measured state is finite and inside the limits; then resume the phase."""
+    if state.task.phase is not TaskPhase.VALIDATE:
+        return
+    limits = state.config.limits
+    q = state.measured_q
+    inside = np.all(q >= limits.lower - _POSITION_TOLERANCE) and np.all(
+        q <= limits.upper + _POSITION_TOLERANCE)
+    if not (np.isfinite(q).all() and inside):
+        return
+    if state.fallback.mode is Mode.DEGRADED and state.session is None:
+        return
+    state.log_task(state.task.finish_validation())
+    transition = state.fallback.validated()
+    if transition is not None:
+        state.apply(transition)
+
+
+def on_operator(state: CoreState, event: OperatorEvent) -> None:
+    handler = _OPERATOR[event.action]
+    handler(state)
+
+
+def _takeover(state: CoreState) -> None:
+    if not state.fire(R.HUMAN_TAKEOVER):
+        state.refuse("fallback", Mode.HUMAN_RECOVERY, R.NO_AUTHORITY,
+                     f"takeover not possible in {state.fallback.mode}")
+
+
+def _release(state: CoreState) -> None:
+    _outcome(state, state.fallback.release(), Mode.SAFE_HOLD)
+
+
+def _reset(state: CoreState) -> None:
+    _outcome(state, state.fallback.reset(estop_clear=not state.estop_asserted), Mode.SAFE_HOLD)
+
+
+def _accept_recovery(state: CoreState) -> None:
+    outcome = state.fallback.recover(state.session is not None, state.controller_ok)
+    if isinstance(outcome, str):
+        state.refuse("fallback", Mode.RUNNING, R.GUARD_FAILED, outcome)
+        return
+    state.apply(outcome, QueueAction.NEW_EPOCH)
+    if state.task.phase in (TaskPhase.SAFE_HOLD, TaskPhase.HUMAN_RECOVERY):
+        state.log_task(state.task.begin_validation(R.RECOVERY_ACCEPTED))
+        validate(state)
+
+
+def _estop(state: CoreState) -> None:
+    state.fire(R.E_STOP)
+
+
+def _abort(state: CoreState) -> None:
+    state.log_task(state.task.request(TaskPhase.ABORT, {}, Requester.OPERATOR))
+
+
+def _outcome(state: CoreState, outcome: object, target: Mode) -> None:
+    if isinstance(outcome, str):
+        state.refuse("fallback", target, R.GUARD_FAILED, outcome)
+        return
+    state.apply(outcome)  # type: ignore[arg-type]
+
+
+_OPERATOR = {
+    "takeover": _takeover,
+    "release": _release,
+    "reset": _reset,
+    "accept_recovery": _accept_recovery,
+    "estop": _estop,
+    "abort": _abort,
+}
+
+
+def on_controller(state: CoreState, event: ControllerEvent) -> None:
+    status = event.status
+    if status == "ok":
+        state.controller_ok = True
+        state.estop_asserted = False
+        return
+    if status == "estop":
+        state.estop_asserted = True
+        state.fire(R.E_STOP)
+        return
+    state.controller_ok = False
+    trigger = R.CONTROLLER_REJECT if status == "reject" else R.CONTROLLER_FAULT
+    state.fire(trigger)

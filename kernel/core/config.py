@@ -1,0 +1,67 @@
+"""Configuration of the core: everything a replay or a live run fixes before the first event."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from assurance.handshake import AllowList, ClientHello, Session
+from assurance.limits import JointLimits
+from assurance.reasons import ReasonCode
+from assurance.watermarks import WatermarkConfig
+from skills.phases import PhaseBook, TaskPhase
+
+
+@dataclass(frozen=True, slots=True)
+class ClientSide:
+    """What this client states in its handshake (CONTRACT.md §5), minus the queue epoch."""
+
+    skill: str
+    skill_version: str
+    observation_keys: tuple[str, ...]
+    action_dim: int
+    action_units: str
+    action_frame: str
+    controller_mode: str
+    calibration_epoch: str
+    protocol: tuple[int, int]
+    control_rate_hz: float
+
+    def hello(self, queue_epoch: int) -> ClientHello:
+        return ClientHello(
+            skill=self.skill, skill_version=self.skill_version,
+            observation_keys=self.observation_keys, action_dim=self.action_dim,
+            action_units=self.action_units, action_frame=self.action_frame,
+            controller_mode=self.controller_mode, control_rate_hz=self.control_rate_hz,
+            calibration_epoch=self.calibration_epoch, queue_epoch=queue_epoch,
+            protocol=self.protocol, reason_codes=tuple(ReasonCode),
+        )
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class CoreConfig:
+    limits: JointLimits
+    control_period_ns: int
+    clock_uncertainty_ns: int
+    phases: PhaseBook
+    client: ClientSide
+    allowlist: AllowList
+    initial_session: Session | None
+    initial_phase: TaskPhase
+    initial_q: np.ndarray
+    initial_epoch: int = 0
+    watermarks: WatermarkConfig = WatermarkConfig()
+    degrade_after: int = 3
+    """Consecutive timing refusals (stale, expired, reordered, ...) before DEGRADED."""
+    state_timeout_ns: int | None = None
+    """Watchdog on state samples; ``None`` disables it (scenario default)."""
+    memory_capacity: int = 4096
+
+    def __post_init__(self) -> None:
+        if self.control_period_ns <= 0:
+            raise ValueError("control period must be positive")
+        if self.initial_q.shape != (self.limits.dim,):
+            raise ValueError(
+                f"initial state has {self.initial_q.shape[0]} values, robot has {self.limits.dim}"
+            )

@@ -1,0 +1,98 @@
+"""Events the core consumes: frozen msgspec Structs, times in client nanoseconds.
+
+The shell turns I/O into these; a scenario or journal is a list of them. A chunk event carries
+the already-decoded envelope (:class:`~assurance.envelope.Chunk` or
+:class:`~assurance.envelope.MalformedChunk`): decoding is the first admission gate, and the
+same decoded chunk is what the journal records.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import msgspec
+
+from assurance.envelope import Chunk, MalformedChunk
+
+
+class StateEvent(msgspec.Struct, frozen=True, kw_only=True):
+    t: int
+    q: tuple[float, ...]
+    qd: tuple[float, ...] | None = None
+    force_residual: float | None = None
+
+
+class ObservationEvent(msgspec.Struct, frozen=True, kw_only=True):
+    t: int
+    observation_id: str
+
+
+class PhaseEvent(msgspec.Struct, frozen=True, kw_only=True):
+    t: int
+    to: str
+    evidence: dict[str, Any] = {}
+    by: str = "fsm"
+
+
+class ForceEvent(msgspec.Struct, frozen=True, kw_only=True):
+    t: int
+    residual: float
+
+
+class OodEvent(msgspec.Struct, frozen=True, kw_only=True):
+    t: int
+    score: float
+
+
+class LinkEvent(msgspec.Struct, frozen=True, kw_only=True):
+    t: int
+    status: str
+
+
+class HandshakeEvent(msgspec.Struct, frozen=True, kw_only=True):
+    t: int
+    offer: dict[str, Any]
+
+
+class OperatorEvent(msgspec.Struct, frozen=True, kw_only=True):
+    t: int
+    action: str
+
+
+class ControllerEvent(msgspec.Struct, frozen=True, kw_only=True):
+    t: int
+    status: str
+
+
+class ClockSyncEvent(msgspec.Struct, frozen=True, kw_only=True):
+    t: int
+    domain: str
+    offset: int
+    round_trip: int
+
+
+class TickEvent(msgspec.Struct, frozen=True, kw_only=True):
+    """An explicit control tick (journals record them; scenario ticks are generated)."""
+
+    t: int
+
+
+class ChunkEvent:
+    """A chunk arrival at ``t`` (= client_receive). Not a Struct: it holds a numpy array."""
+
+    __slots__ = ("chunk", "t")
+
+    def __init__(self, t: int, chunk: Chunk | MalformedChunk) -> None:
+        self.t = t
+        self.chunk = chunk
+
+
+Event = (
+    StateEvent | ObservationEvent | PhaseEvent | ForceEvent | OodEvent | LinkEvent
+    | HandshakeEvent | OperatorEvent | ControllerEvent | ClockSyncEvent | TickEvent | ChunkEvent
+)
+
+OPERATOR_ACTIONS = ("takeover", "release", "accept_recovery", "estop", "reset", "abort")
+CONTROLLER_STATUSES = ("ok", "reject", "fault", "protective_stop", "estop")
+LINK_STATUSES = ("down", "up")
+REQUESTERS = ("fsm", "policy", "operator")

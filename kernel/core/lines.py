@@ -1,0 +1,108 @@
+"""Decision-log lines (CONTRACT.md §7) as frozen msgspec Structs, one kind per class.
+
+Field order is fixed by the class, ``kind`` comes first, and optional fields are omitted when
+unset, so the same decisions always encode to the same bytes. ``t`` is in milliseconds.
+"""
+
+from __future__ import annotations
+
+import msgspec
+
+Ms = int | float
+
+
+class SentRef(msgspec.Struct, frozen=True):
+    chunk_id: str
+    index: int
+
+
+class ChunkLine(msgspec.Struct, frozen=True, kw_only=True, tag_field="kind", tag="chunk",
+                omit_defaults=True):
+    t: Ms
+    chunk_id: str | None
+    decision: str
+    reasons: tuple[str, ...]
+    queue_epoch: int
+    queue_depth: int
+    trimmed: int | None = None
+    projection_distance: float | None = None
+    merge: str | None = None
+    displaced: int | None = None
+    observation_age_ms: Ms | None = None
+    divergence: float | None = None
+    detail: str | None = None
+
+
+class TickLine(msgspec.Struct, frozen=True, kw_only=True, tag_field="kind", tag="tick",
+               omit_defaults=True):
+    t: Ms
+    command: str
+    owner: str
+    sent: SentRef | None
+    phase: str
+    mode: str
+    reason: str | None = None
+    age_ms: Ms | None = None
+
+
+class TransitionLine(msgspec.Struct, frozen=True, kw_only=True, tag_field="kind",
+                     tag="transition", omit_defaults=True):
+    t: Ms
+    machine: str
+    from_: str = msgspec.field(name="from")
+    to: str
+    trigger: str
+    accepted: bool = True
+    requested: str | None = None
+    reasons: tuple[str, ...] = ()
+    missing_evidence: tuple[str, ...] = ()
+    owner: str | None = None
+    command: str | None = None
+    queue: str | None = None
+    recovery: str | None = None
+    detail: str | None = None
+
+
+class HandshakeLine(msgspec.Struct, frozen=True, kw_only=True, tag_field="kind",
+                    tag="handshake", omit_defaults=True):
+    t: Ms
+    decision: str
+    fingerprint: str | None = None
+    reasons: tuple[str, ...] = ()
+    protocol: int | None = None
+    queue_epoch: int | None = None
+
+
+class QueueLine(msgspec.Struct, frozen=True, kw_only=True, tag_field="kind", tag="queue",
+                omit_defaults=True):
+    t: Ms
+    action: str
+    queue_epoch: int
+    dropped: int = 0
+    chunk_id: str | None = None
+    reason: str | None = None
+
+
+class RequestLine(msgspec.Struct, frozen=True, kw_only=True, tag_field="kind", tag="request",
+                  omit_defaults=True):
+    t: Ms
+    observation_id: str | None
+    queue_depth: int
+    depth_ms: Ms = 0
+    low_watermark_ms: Ms = 0
+
+
+Line = ChunkLine | TickLine | TransitionLine | HandshakeLine | QueueLine | RequestLine
+
+_encoder = msgspec.json.Encoder()
+
+
+def encode(line: Line) -> bytes:
+    return _encoder.encode(line)
+
+
+LINE_TYPES: dict[str, type[Line]] = {
+    "chunk": ChunkLine, "tick": TickLine, "transition": TransitionLine,
+    "handshake": HandshakeLine, "queue": QueueLine, "request": RequestLine,
+}
+decoder = msgspec.json.Decoder(Line)

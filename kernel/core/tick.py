@@ -1,0 +1,173 @@
+"""The control tick: who owns this period, and what goes out (CONTRACT.md §4, §7).
+
+Outside RUNNING the fallback state decides (hold, retreat, stop, human). In RUNNING the phase's
+executor decides: a policy phase sends the queued action in force, or holds at the measured
+state on underrun (a validated hold, never the last action repeated) and escalates to SAFE_HOLD
+if the underrun lasts; the contact owner runs the impedance law with the admitted bounded target
+if there is one; the planner runs its classical trajectory. Every tick that is not a policy
+setpoint carries its reason.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from assurance.clock import ns_to_ms
+from assurance.fallback import MODES, Command, Mode, Owner
+from assurance.queue import Row
+from assurance.reasons import ReasonCode as R
+from kernel.core.authority import validate
+from kernel.core.lines import QueueLine, RequestLine, SentRef, TickLine
+from kernel.core.state import CoreState
+from skills.phases import Executor, TaskPhase
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class TickCommand:
+    """What the shell sends this period. ``target`` is a joint vector where one applies."""
+
+    command: Command
+    owner: Owner
+    target: np.ndarray | None
+    sent: SentRef | None
+    reason: R | None
+    t_obs: int | None = None
+
+
+def tick(state: CoreState) -> TickCommand:
+    _watchdog(state)
+    if state.task.phase is TaskPhase.VALIDATE:
+        validate(state)
+    row = _row_in_force(state) if state.fallback.mode is Mode.RUNNING else None
+    decision = _decide(state, row)
+    _track_hold(state, decision)
+    _log(state, decision)
+    _maybe_request(state)
+    return decision
+
+
+def _watchdog(state: CoreState) -> None:
+    timeout = state.config.state_timeout_ns
+    if timeout is None or state.measured_t is None:
+        return
+    if state.t - state.measured_t > timeout:
+        state.fire(R.WATCHDOG)
+
+
+def _row_in_force(state: CoreState) -> Row | None:
+    """The queued row due now that is still young enough; expired rows are dropped, logged.
+
+    A segment's expiry instant already includes the clock uncertainty (gates.time_verdict).
+    """
+    while True:
+        row = state.queue.active(state.t)
+        if row is None or state.t < row.segment.expires_at:
+            return row
+        dropped = state.queue.unrun_rows(state.t)
+        chunk_id, _ = state.queue.drop_head()
+        state.emit(QueueLine(t=state.t_ms, action="expire", queue_epoch=state.epoch,
+                             dropped=dropped, chunk_id=chunk_id, reason=R.EXPIRED))
+
+
+def _decide(state: CoreState, row: Row | None) -> TickCommand:
+    mode = state.fallback.mode
+    if mode is Mode.RUNNING:
+        return _running(state, row)
+    if mode is Mode.DEGRADED:
+        return _degraded(state)
+    card = MODES[mode]
+    holds = card.command is Command.HOLD and card.owner is not Owner.HUMAN
+    target = _hold(state) if holds else None
+    return TickCommand(card.command, card.owner, target, None, state.fallback.cause)
+
+
+def _running(state: CoreState, row: Row | None) -> TickCommand:
+    executor = state.card.executor
+    if executor is Executor.POLICY:
+        return _policy(state, row)
+    if executor is Executor.CONTACT:
+        return _contact(state, row)
+    if executor is Executor.PLANNER:
+        command = Command.RETREAT if state.task.phase is TaskPhase.RETREAT else Command.SETPOINT
+        return TickCommand(command, Owner.PLANNER, None, None, R.PHASE_OWNER)
+    owner = Owner.FALLBACK if state.task.phase is TaskPhase.VALIDATE else Owner.PLANNER
+    return TickCommand(Command.HOLD, owner, _hold(state), None, R.PHASE_OWNER)
+
+
+def _policy(state: CoreState, row: Row | None) -> TickCommand:
+    if row is not None:
+        state.executed_in_epoch = True
+        state.underrun_since = None
+        sent = SentRef(row.segment.chunk_id, row.chunk_index)
+        return TickCommand(Command.SETPOINT, Owner.POLICY, row.q, sent, None, row.segment.t_obs)
+    if _underrun_escalates(state):
+        return _decide(state, None)
+    return TickCommand(Command.HOLD, Owner.FALLBACK, _hold(state), None, R.UNDERRUN)
+
+
+def _underrun_escalates(state: CoreState) -> bool:
+    """An underrun after the queue has run in this epoch escalates once it lasts too long."""
+    if not state.executed_in_epoch:
+        return False
+    if state.underrun_since is None:
+        state.underrun_since = state.t
+    if state.t - state.underrun_since < state.card.policy.underrun_limit_ns:
+        return False
+    return state.fire(R.UNDERRUN)
+
+
+def _contact(state: CoreState, row: Row | None) -> TickCommand:
+    if row is not None:
+        sent = SentRef(row.segment.chunk_id, row.chunk_index)
+        return TickCommand(Command.CONTACT, Owner.CONTACT, row.q, sent, R.PHASE_OWNER,
+                           row.segment.t_obs)
+    return TickCommand(Command.CONTACT, Owner.CONTACT, _hold(state), None, R.UNDERRUN)
+
+
+def _degraded(state: CoreState) -> TickCommand:
+    """Without the policy link the phase's classical owner keeps its job; policy phases hold."""
+    cause = state.fallback.cause
+    executor = state.card.executor
+    if executor is Executor.CONTACT:
+        return TickCommand(Command.CONTACT, Owner.CONTACT, _hold(state), None, cause)
+    if executor is Executor.PLANNER:
+        command = Command.RETREAT if state.task.phase is TaskPhase.RETREAT else Command.SETPOINT
+        return TickCommand(command, Owner.PLANNER, None, None, cause)
+    return TickCommand(Command.HOLD, Owner.FALLBACK, _hold(state), None, cause)
+
+
+def _hold(state: CoreState) -> np.ndarray:
+    """The validated hold target: latched at the measured state when the hold begins."""
+    if state.hold_q is None:
+        state.hold_q = state.hold_target()
+    return state.hold_q
+
+
+def _track_hold(state: CoreState, decision: TickCommand) -> None:
+    """A tick that does not hold ends the hold: the next hold latches a fresh target."""
+    if decision.target is not state.hold_q:
+        state.hold_q = None
+
+
+def _log(state: CoreState, decision: TickCommand) -> None:
+    age = ns_to_ms(state.t - decision.t_obs) if decision.t_obs is not None else None
+    state.emit(TickLine(
+        t=state.t_ms, command=decision.command, owner=decision.owner, sent=decision.sent,
+        phase=state.task.phase, mode=state.fallback.mode, reason=decision.reason, age_ms=age,
+    ))
+
+
+def _maybe_request(state: CoreState) -> None:
+    marks = state.watermarks
+    if marks is None:
+        return
+    allowed = state.accepts_proposals and state.link_up and state.session is not None
+    depth = state.queue.depth_ns(state.t)
+    if marks.should_request(state.t, depth, allowed):
+        state.emit(RequestLine(
+            t=state.t_ms, observation_id=state.observations.latest,
+            queue_depth=state.queue.pending_rows(state.t), depth_ms=ns_to_ms(depth),
+            low_watermark_ms=ns_to_ms(marks.low_ns),
+        ))

@@ -1,0 +1,5 @@
+"""Scenario files and run journals (CONTRACT.md §7): load, validate, turn into core inputs."""
+
+from kernel.scenario.load import Scenario, ScenarioError, load_scenario
+
+__all__ = ["Scenario", "ScenarioError", "load_scenario"]

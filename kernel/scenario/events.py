@@ -1,0 +1,162 @@
+"""Scenario events → core events, validated one by one (CONTRACT.md §7, event table).
+
+An invalid *event* (unknown kind, missing field, wrong dimension, time going backwards) makes
+the file invalid and exits 2 naming it. A chunk's *content* is never a file error: whatever the
+envelope holds, it is decoded into a chunk or a malformed chunk and refused with reason codes.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping
+from typing import Any
+
+from assurance.clock import ms_to_ns
+from assurance.envelope import decode_event_chunk
+from assurance.limits import JointLimits
+from kernel.core.events import (
+    CONTROLLER_STATUSES,
+    LINK_STATUSES,
+    OPERATOR_ACTIONS,
+    REQUESTERS,
+    ChunkEvent,
+    ClockSyncEvent,
+    ControllerEvent,
+    Event,
+    ForceEvent,
+    HandshakeEvent,
+    LinkEvent,
+    ObservationEvent,
+    OodEvent,
+    OperatorEvent,
+    PhaseEvent,
+    StateEvent,
+    TickEvent,
+)
+from kernel.scenario.config import state_vector
+from kernel.scenario.fields import Where, choice, is_number, mapping, number, text, vector
+from skills.phases import TaskPhase
+
+Parser = Callable[[int, Mapping[str, Any], Where, JointLimits], Event]
+
+
+def parse_events(raw: Any, where: Where, limits: JointLimits) -> list[Event]:
+    if not isinstance(raw, list):
+        raise where.error("must be a list of events")
+    events: list[Event] = []
+    last = 0
+    for index, item in enumerate(raw):
+        here = where.at(index)
+        if not isinstance(item, dict):
+            raise here.error("must be an object with 't' and 'kind'")
+        kind = item.get("kind")
+        here = Where(here.file, f"{here.path} ({kind})") if isinstance(kind, str) else here
+        t = ms_to_ns(number(item, "t", here, minimum=0))
+        if t < last:
+            raise here.error(f"time {item['t']} ms is earlier than the event before it")
+        last = t
+        parser = _PARSERS.get(kind) if isinstance(kind, str) else None
+        if parser is None:
+            raise here.at("kind").error(f"unknown event kind {kind!r} "
+                                        f"(expected one of {', '.join(_PARSERS)})")
+        events.append(parser(t, item, here, limits))
+    return events
+
+
+def _state(t: int, item: Mapping[str, Any], where: Where, limits: JointLimits) -> Event:
+    if "q" not in item:
+        raise where.error("missing required key 'q'")
+    q = state_vector(item["q"], where.at("q"), limits, finite=False)
+    qd = None
+    if item.get("qd") is not None:
+        qd = tuple(state_vector(item["qd"], where.at("qd"), limits, finite=False).tolist())
+    residual = _residual(item.get("force_residual"), where.at("force_residual"))
+    return StateEvent(t=t, q=tuple(q.tolist()), qd=qd, force_residual=residual)
+
+
+def _residual(raw: Any, where: Where) -> float | None:
+    """A residual is a number, or a vector reduced to its largest magnitude."""
+    if raw is None:
+        return None
+    if is_number(raw):
+        return float(raw)
+    values = vector(raw, where, finite=False)
+    if not values:
+        raise where.error("must not be empty")
+    if any(math.isnan(v) for v in values):
+        return math.nan
+    return max(values, key=abs)
+
+
+def _observation(t: int, item: Mapping[str, Any], where: Where, _: JointLimits) -> Event:
+    return ObservationEvent(t=t, observation_id=text(item, "observation_id", where))
+
+
+def _chunk(t: int, item: Mapping[str, Any], where: Where, _: JointLimits) -> Event:
+    return ChunkEvent(t, decode_event_chunk(item, t))
+
+
+def _phase(t: int, item: Mapping[str, Any], where: Where, _: JointLimits) -> Event:
+    to = choice(item, "to", where, tuple(TaskPhase))
+    evidence = mapping(item, "evidence", where, required=False)
+    by = choice(item, "by", where, REQUESTERS, default="fsm")
+    return PhaseEvent(t=t, to=to, evidence=evidence, by=by)
+
+
+def _force(t: int, item: Mapping[str, Any], where: Where, _: JointLimits) -> Event:
+    if "residual" not in item:
+        raise where.error("missing required key 'residual'")
+    residual = _residual(item["residual"], where.at("residual"))
+    return ForceEvent(t=t, residual=math.nan if residual is None else residual)
+
+
+def _ood(t: int, item: Mapping[str, Any], where: Where, _: JointLimits) -> Event:
+    score = item.get("score")
+    if not is_number(score):
+        raise where.at("score").error(f"must be a number, got {score!r}")
+    # A score that is not a number cannot vouch for anything: treat it as out of distribution.
+    return OodEvent(t=t, score=float(score) if math.isfinite(score) else math.inf)
+
+
+def _link(t: int, item: Mapping[str, Any], where: Where, _: JointLimits) -> Event:
+    return LinkEvent(t=t, status=choice(item, "status", where, LINK_STATUSES))
+
+
+def _handshake(t: int, item: Mapping[str, Any], where: Where, _: JointLimits) -> Event:
+    return HandshakeEvent(t=t, offer=mapping(item, "offer", where))
+
+
+def _operator(t: int, item: Mapping[str, Any], where: Where, _: JointLimits) -> Event:
+    return OperatorEvent(t=t, action=choice(item, "action", where, OPERATOR_ACTIONS))
+
+
+def _controller(t: int, item: Mapping[str, Any], where: Where, _: JointLimits) -> Event:
+    return ControllerEvent(t=t, status=choice(item, "status", where, CONTROLLER_STATUSES))
+
+
+def _clock_sync(t: int, item: Mapping[str, Any], where: Where, _: JointLimits) -> Event:
+    return ClockSyncEvent(
+        t=t, domain=text(item, "domain", where),
+        offset=ms_to_ns(number(item, "offset_ms", where)),
+        round_trip=ms_to_ns(number(item, "round_trip_ms", where, minimum=0)),
+    )
+
+
+def _tick(t: int, item: Mapping[str, Any], where: Where, _: JointLimits) -> Event:
+    return TickEvent(t=t)
+
+
+_PARSERS: dict[str, Parser] = {
+    "state": _state,
+    "observation": _observation,
+    "chunk": _chunk,
+    "phase": _phase,
+    "force": _force,
+    "ood": _ood,
+    "link": _link,
+    "handshake": _handshake,
+    "operator": _operator,
+    "controller": _controller,
+    "clock_sync": _clock_sync,
+    "tick": _tick,
+}

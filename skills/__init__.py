@@ -1,0 +1,1 @@
+"""Skills: the task FSM, phase contract cards, and the classical owners (contact, planner)."""
