@@ -12,11 +12,11 @@ from assurance.clock import ns_to_ms
 from assurance.envelope import Chunk, MalformedChunk, ReplacementPolicy
 from assurance.fallback import IRRELEVANT, refusal_trigger
 from assurance.gates import (
+    AdmissionContext,
     Timing,
     content_reasons,
     context_reasons,
     divergence,
-    divergence_reasons,
     identity_reasons,
     time_verdict,
 )
@@ -63,11 +63,13 @@ def _evaluate(state: CoreState, chunk: Chunk, seen: Seen) -> None:
     reasons += context_reasons(chunk, ctx)
     timing = time_verdict(chunk, ctx, t_obs)
     reasons += timing.reasons
-    reasons += divergence_reasons(chunk, ctx, timing.first_due)
+    drift = _divergence(state, chunk, ctx, timing)
+    if drift is not None and drift > ctx.policy.max_divergence:
+        reasons.append(R.STATE_DIVERGED)
     plan = _plan(state, chunk, timing, t_obs) if _can_plan(chunk, timing, reasons) else None
     if plan is not None:
         reasons += _feasibility_reasons(state, plan)
-    extras = _measurements(state, chunk, timing, t_obs, plan)
+    extras = _measurements(state, t_obs, plan, drift)
     if reasons:
         _decide(state, chunk.chunk_id, canonical(reasons), **extras)
         return
@@ -108,17 +110,25 @@ def _feasibility_reasons(state: CoreState, plan: MergePlan) -> list[R]:
     return reasons
 
 
+def _divergence(
+    state: CoreState, chunk: Chunk, ctx: AdmissionContext, timing: Timing
+) -> float | None:
+    """Divergence of a finite chunk of the session's width; None when it cannot be measured."""
+    if chunk.nonfinite or chunk.actions.shape[1] != state.config.client.action_dim:
+        return None
+    return divergence(chunk, ctx, timing.first_due)
+
+
 def _measurements(
-    state: CoreState, chunk: Chunk, timing: Timing, t_obs: int | None, plan: MergePlan | None
+    state: CoreState, t_obs: int | None, plan: MergePlan | None, drift: float | None
 ) -> dict[str, object]:
     extras: dict[str, object] = {}
     if t_obs is not None:
         extras["observation_age_ms"] = ns_to_ms(state.t - t_obs)
     if plan is not None:
         extras["projection_distance"] = round(plan.projection.max_distance, _PROJECTION_DIGITS)
-    if not chunk.nonfinite and chunk.actions.shape[1] == state.config.client.action_dim:
-        extras["divergence"] = round(divergence(chunk, state.context(), timing.first_due),
-                                     _PROJECTION_DIGITS)
+    if drift is not None:
+        extras["divergence"] = round(drift, _PROJECTION_DIGITS)
     return extras
 
 
