@@ -78,13 +78,20 @@ class TickEvent(msgspec.Struct, frozen=True, kw_only=True):
 
 
 class ChunkEvent:
-    """A chunk arrival at ``t`` (= client_receive). Not a Struct: it holds a numpy array."""
+    """A chunk arrival at ``t`` (= client_receive). Not a Struct: it holds a numpy array.
 
-    __slots__ = ("chunk", "t")
+    ``frame`` keeps the bytes exactly as they arrived when the chunk came off the wire, so a
+    journal can replay the very same decode.
+    """
 
-    def __init__(self, t: int, chunk: Chunk | MalformedChunk) -> None:
+    __slots__ = ("chunk", "frame", "t")
+
+    def __init__(
+        self, t: int, chunk: Chunk | MalformedChunk, frame: bytes | None = None
+    ) -> None:
         self.t = t
         self.chunk = chunk
+        self.frame = frame
 
 
 Event = (

@@ -7,12 +7,14 @@ envelope holds, it is decoded into a chunk or a malformed chunk and refused with
 
 from __future__ import annotations
 
+import base64
+import binascii
 import math
 from collections.abc import Callable, Mapping
 from typing import Any
 
 from assurance.clock import ms_to_ns
-from assurance.envelope import decode_event_chunk
+from assurance.envelope import decode_event_chunk, decode_wire_chunk
 from assurance.limits import JointLimits
 from kernel.core.events import (
     CONTROLLER_STATUSES,
@@ -93,7 +95,17 @@ def _observation(t: int, item: Mapping[str, Any], where: Where, _: JointLimits) 
 
 
 def _chunk(t: int, item: Mapping[str, Any], where: Where, _: JointLimits) -> Event:
-    return ChunkEvent(t, decode_event_chunk(item, t))
+    """Envelope fields in milliseconds, or (journals) the frame exactly as it arrived."""
+    wire = item.get("wire")
+    if wire is None:
+        return ChunkEvent(t, decode_event_chunk(item, t))
+    if not isinstance(wire, str):
+        raise where.at("wire").error("must be the base64 text of a MessagePack frame")
+    try:
+        frame = base64.b64decode(wire, validate=True)
+    except binascii.Error:
+        raise where.at("wire").error("is not valid base64") from None
+    return ChunkEvent(t, decode_wire_chunk(frame, t))
 
 
 def _phase(t: int, item: Mapping[str, Any], where: Where, _: JointLimits) -> Event:

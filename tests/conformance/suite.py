@@ -30,6 +30,8 @@ class Harness:
     """Let ``seconds`` of device time pass (a real sleep, or plant steps in lockstep)."""
     hold_tolerance: float = 0.01
     move_tolerance: float = 0.02
+    applied_tolerance: float = 1e-6
+    """How far the applied setpoint may be from the commanded one (a quantised device rounds)."""
     closers: list[Callable[[], None]] = field(default_factory=list)
 
 
@@ -86,7 +88,7 @@ class DriverConformance:
             target[0] += 0.05
             applied = await driver.write(Command(kind=CommandKind.POSITION, q=tuple(target)))
             assert applied.accepted
-            assert np.allclose(applied.q, target, atol=1e-6)
+            assert np.allclose(applied.q, target, atol=harness.applied_tolerance)
             await _stream(driver, harness, tuple(target.tolist()), 0.6)
             reached = np.array((await driver.read()).q)
             assert abs(reached[0] - target[0]) < harness.move_tolerance

@@ -1,0 +1,130 @@
+"""Run journals: the events a live run fed its core, in the scenario event format.
+
+The first line is a header with ``"format": "warden-journal/1"`` and the same robot, timing,
+phases, session and allowlist sections as a scenario; every further line is one event (times in
+milliseconds since the run started), ticks included. ``warden replay JOURNAL`` feeds them to a
+fresh core and reproduces every decision of the run. A chunk that came off the wire is journaled
+as its frame (base64), so the replay decodes exactly the bytes the run decoded.
+"""
+
+from __future__ import annotations
+
+import base64
+import json
+import math
+from collections.abc import Callable, Mapping
+from typing import IO, Any
+
+import msgspec
+
+from assurance.clock import ns_to_ms
+from assurance.envelope import TIME_FIELDS, Chunk, MalformedChunk
+from kernel.core.events import (
+    ChunkEvent,
+    ClockSyncEvent,
+    ControllerEvent,
+    Event,
+    ForceEvent,
+    HandshakeEvent,
+    LinkEvent,
+    ObservationEvent,
+    OodEvent,
+    OperatorEvent,
+    PhaseEvent,
+    StateEvent,
+    TickEvent,
+)
+
+JOURNAL_FORMAT = "warden-journal/1"
+
+
+def header(sections: Mapping[str, Any], name: str) -> dict[str, Any]:
+    """The journal's first line: the scenario sections that configure the core."""
+    keys = ("robot", "timing", "phases", "session", "allowlist")
+    return {"format": JOURNAL_FORMAT, "name": name, **{k: sections[k] for k in keys
+                                                       if k in sections}}
+
+
+def event_record(event: Event) -> dict[str, Any]:
+    """One event as a scenario/journal dictionary."""
+    record: dict[str, Any] = {"t": ns_to_ms(event.t)}
+    record.update(_BODIES[type(event)](event))
+    return record
+
+
+def _state(event: StateEvent) -> dict[str, Any]:
+    body: dict[str, Any] = {"kind": "state", "q": list(event.q)}
+    if event.qd is not None:
+        body["qd"] = list(event.qd)
+    if event.force_residual is not None:
+        body["force_residual"] = event.force_residual
+    return body
+
+
+def _chunk(event: ChunkEvent) -> dict[str, Any]:
+    if event.frame is not None:
+        chunk_id = event.chunk.chunk_id
+        return {"kind": "chunk", "chunk_id": chunk_id,
+                "wire": base64.b64encode(event.frame).decode("ascii")}
+    if isinstance(event.chunk, MalformedChunk):
+        raise ValueError("a malformed chunk can only be journaled with the frame it came in")
+    return {"kind": "chunk", **chunk_fields(event.chunk)}
+
+
+def chunk_fields(chunk: Chunk) -> dict[str, Any]:
+    """The envelope of a decoded chunk in scenario form (milliseconds)."""
+    fields: dict[str, Any] = {
+        name: getattr(chunk, name) for name in (
+            "chunk_id", "sequence", "queue_epoch", "policy_checkpoint", "config_hash",
+            "skill_version", "task_phase", "controller_mode", "calibration_epoch",
+            "observation_id", "clock_domain")
+    }
+    for name in (*TIME_FIELDS, "action_dt", "max_observation_age", "max_action_age"):
+        value = chunk.times.get(name)
+        if value is not None:
+            fields[name] = ns_to_ms(value)
+        elif name in chunk.nonfinite:
+            fields[name] = math.nan  # which non-finite value it was does not change the refusal
+    optional = {"skill": chunk.skill, "fallback_id": chunk.fallback_id,
+                "action_units": chunk.action_units, "action_frame": chunk.action_frame}
+    fields.update({k: v for k, v in optional.items() if v is not None})
+    fields["replacement_policy"] = str(chunk.replacement_policy)
+    if chunk.phase_markers:
+        fields["phase_markers"] = list(chunk.phase_markers)
+    fields["actions"] = chunk.actions.tolist()
+    return fields
+
+
+_BODIES: dict[type, Callable[[Any], dict[str, Any]]] = {
+    StateEvent: _state,
+    ChunkEvent: _chunk,
+    ObservationEvent: lambda e: {"kind": "observation", "observation_id": e.observation_id},
+    PhaseEvent: lambda e: {"kind": "phase", "to": e.to, "evidence": dict(e.evidence),
+                           "by": e.by},
+    ForceEvent: lambda e: {"kind": "force", "residual": e.residual},
+    OodEvent: lambda e: {"kind": "ood", "score": e.score},
+    LinkEvent: lambda e: {"kind": "link", "status": e.status},
+    HandshakeEvent: lambda e: {"kind": "handshake", "offer": msgspec.to_builtins(e.offer)},
+    OperatorEvent: lambda e: {"kind": "operator", "action": e.action},
+    ControllerEvent: lambda e: {"kind": "controller", "status": e.status},
+    ClockSyncEvent: lambda e: {"kind": "clock_sync", "domain": e.domain,
+                               "offset_ms": ns_to_ms(e.offset),
+                               "round_trip_ms": ns_to_ms(e.round_trip)},
+    TickEvent: lambda e: {"kind": "tick"},
+}
+
+
+class JournalWriter:
+    """Writes a journal to a text stream, one JSON document per line."""
+
+    def __init__(self, stream: IO[str], head: Mapping[str, Any]) -> None:
+        self._stream = stream
+        self._stream.write(json.dumps(head, allow_nan=True) + "\n")
+        self.events = 0
+
+    def write(self, event: Event) -> None:
+        self._stream.write(json.dumps(event_record(event), allow_nan=True) + "\n")
+        self.events += 1
+
+    def flush(self) -> None:
+        self._stream.flush()
