@@ -77,4 +77,5 @@ def _coerce_tuple(value: Any, args: tuple[Any, ...], where: str) -> tuple[Any, .
         return tuple(_coerce(v, args[0], f"{where}[{i}]") for i, v in enumerate(value))
     if len(args) != len(value):
         raise SettingsError(f"{where}: expected {len(args)} values, got {len(value)}")
-    return tuple(_coerce(v, a, f"{where}[{i}]") for i, (v, a) in enumerate(zip(args, value)))
+    pairs = enumerate(zip(args, value, strict=True))
+    return tuple(_coerce(item, hint, f"{where}[{i}]") for i, (hint, item) in pairs)

@@ -75,9 +75,8 @@ class TaskMachine:
         reasons: list[ReasonCode] = []
         missing = self._missing(target, evidence)
         legal = target in EDGES[self.phase]
-        if by is Requester.POLICY:
-            reasons.append(ReasonCode.NO_AUTHORITY)
-        elif not fsm_has_authority and target not in SUSPENDED:
+        fsm_outranked = not fsm_has_authority and target not in SUSPENDED
+        if by is Requester.POLICY or fsm_outranked:
             reasons.append(ReasonCode.NO_AUTHORITY)
         if missing or not legal:
             reasons.append(ReasonCode.GUARD_FAILED)

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -51,7 +51,7 @@ class CoreConfig:
     initial_phase: TaskPhase
     initial_q: np.ndarray
     initial_epoch: int = 0
-    watermarks: WatermarkConfig = WatermarkConfig()
+    watermarks: WatermarkConfig = field(default_factory=WatermarkConfig)
     degrade_after: int = 3
     """Consecutive timing refusals (stale, expired, reordered, ...) before DEGRADED."""
     state_timeout_ns: int | None = None

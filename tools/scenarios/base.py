@@ -102,7 +102,8 @@ def chunk(
         "inference_end": max(obs_t + 6, t - 4), "server_send": max(obs_t + 7, t - 3),
         "first_action_time": first, "action_dt": dt,
         "last_action_time": first + (len(rows) - 1) * dt if rows else DROP,
-        "max_observation_age": 60, "max_action_age": 150, "state_fingerprint": {"q": first_row, "hash": ""},
+        "max_observation_age": 60, "max_action_age": 150,
+        "state_fingerprint": {"q": first_row, "hash": ""},
         "replacement_policy": "replace", "fallback_id": "staging_retreat",
         "actions": actions,
     }

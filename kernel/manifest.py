@@ -1,0 +1,167 @@
+"""Deployment manifests (TOML): what a run drives, with which limits, policy and journal.
+
+A manifest carries the same robot, timing, phases, session and allowlist sections as a scenario
+file (validated by the same code) plus what only a live run needs: the cell, the driver (and
+its emulator in simulation), the policy server, the journal. Unlike a scenario, a manifest
+refuses unknown keys: a typo in a deployment file must never be silently ignored. Every error
+names the file and the key, and the CLI exits 2.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from enum import StrEnum
+from pathlib import Path
+from typing import Any
+
+from drivers.settings import SettingsError, settings_from_mapping
+from kernel.core.config import CoreConfig
+from kernel.scenario.config import build_config
+from kernel.scenario.fields import ScenarioError, Where
+
+
+class ManifestError(ScenarioError):
+    """A manifest that cannot be used; the message names the file and the key."""
+
+
+class ClockKind(StrEnum):
+    WALL = "wall"
+    """Real time: a kernel timer paces the control loop; the policy server is a process."""
+    VIRTUAL = "virtual"
+    """Lockstep: a virtual clock, the plant and an in-process policy step together (fast)."""
+
+
+SCENARIO_SECTIONS: dict[str, frozenset[str] | None] = {
+    "robot": frozenset({"dof", "position_limits", "velocity_limits", "acceleration_limits",
+                        "gripper_index", "gripper_event_threshold"}),
+    "timing": frozenset({"control_period_ms", "clock_uncertainty_ms", "degrade_after",
+                         "state_timeout_ms", "low_watermark_ms", "high_watermark_ms",
+                         "request_retry_ms"}),
+    "session": frozenset({"queue_epoch", "skill", "skill_version", "policy_checkpoint",
+                          "config_hash", "controller_mode", "calibration_epoch",
+                          "observation_keys", "action_dim", "action_units", "action_frame",
+                          "protocol", "phase", "state"}),
+    "phases": None,  # checked per phase below
+    "allowlist": None,  # a list of tables, checked below
+}
+PHASE_KEYS = frozenset({"max_observation_age_ms", "max_action_age_ms", "max_divergence",
+                        "max_projection", "trim", "blend", "force_band", "ood_threshold",
+                        "controller_mode", "max_underrun_ms", "executor"})
+
+
+@dataclass(frozen=True, slots=True)
+class CellSettings:
+    cycles: int = 3
+    clock: ClockKind = ClockKind.WALL
+    seed: int = 7
+    cycle_timeout_s: float = 30.0
+    insertion_tolerance_m: float = 0.015
+    """The evaluator's bar: peg depth below the fixture's top face that counts as inserted."""
+
+
+@dataclass(frozen=True, slots=True)
+class PolicySettings:
+    launch: bool = True
+    host: str = "127.0.0.1"
+    port: int = 0
+    latency_median_ms: float = 30.0
+    latency_p95_ms: float = 60.0
+    chunk_horizon: int = 20
+    action_dt_ms: float = 20.0
+    noise_rad: float = 0.0005
+    clock_offset_ms: float = 0.0
+
+
+@dataclass(frozen=True, slots=True)
+class JournalSettings:
+    enabled: bool = True
+    directory: str = "runs"
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class Manifest:
+    name: str
+    path: Path
+    core: CoreConfig
+    sections: dict[str, Any]
+    """The scenario sections as written (the journal's header repeats them)."""
+    driver_name: str
+    driver_settings: dict[str, Any]
+    emulator: dict[str, Any]
+    cell: CellSettings = field(default_factory=CellSettings)
+    policy: PolicySettings = field(default_factory=PolicySettings)
+    journal: JournalSettings = field(default_factory=JournalSettings)
+
+
+_TOP_KEYS = frozenset({"name", "description", "cell", "driver", "emulator", "policy",
+                       "journal", *SCENARIO_SECTIONS})
+
+
+def load_manifest(path: str | Path) -> Manifest:
+    path = Path(path)
+    where = Where(str(path), "")
+    try:
+        doc = tomllib.loads(path.read_text(encoding="utf-8"))
+    except OSError as error:
+        raise ManifestError(f"{path}: cannot read file: {error.strerror or error}") from None
+    except tomllib.TOMLDecodeError as error:
+        raise ManifestError(f"{path}: not valid TOML: {error}") from None
+    _refuse_unknown(doc, where)
+    sections = {key: doc[key] for key in SCENARIO_SECTIONS if key in doc}
+    try:
+        core = build_config(sections, where)
+    except ScenarioError as error:
+        raise ManifestError(str(error)) from None
+    driver = dict(_table(doc, "driver", where))
+    if "name" not in driver:
+        raise where.at("driver").error("missing required key 'name'")
+    return Manifest(
+        name=str(doc.get("name", path.stem)), path=path, core=core, sections=sections,
+        driver_name=str(driver.pop("name")), driver_settings=driver,
+        emulator=dict(_table(doc, "emulator", where)),
+        cell=_settings(CellSettings, doc, "cell", where),
+        policy=_settings(PolicySettings, doc, "policy", where),
+        journal=_settings(JournalSettings, doc, "journal", where),
+    )
+
+
+def _refuse_unknown(doc: Mapping[str, Any], where: Where) -> None:
+    for key in doc:
+        if key not in _TOP_KEYS:
+            raise where.at(key).error(f"unknown key (known: {', '.join(sorted(_TOP_KEYS))})")
+    for section, known in SCENARIO_SECTIONS.items():
+        if known is not None and section in doc:
+            _check_keys(_table(doc, section, where), known, where.at(section))
+    for phase, body in _table(doc, "phases", where).items():
+        if not isinstance(body, dict):
+            raise where.at("phases").at(phase).error("must be a table")
+        _check_keys(body, PHASE_KEYS, where.at("phases").at(phase))
+    allowlist = doc.get("allowlist", [])
+    if not isinstance(allowlist, list):
+        raise where.at("allowlist").error("must be an array of tables ([[allowlist]])")
+    for index, entry in enumerate(allowlist):
+        if isinstance(entry, dict):
+            _check_keys(entry, frozenset({"policy_checkpoint", "config_hash"}),
+                        where.at("allowlist").at(index))
+
+
+def _check_keys(table: Mapping[str, Any], known: frozenset[str], where: Where) -> None:
+    for key in table:
+        if key not in known:
+            raise where.at(key).error(f"unknown key (known: {', '.join(sorted(known))})")
+
+
+def _table(doc: Mapping[str, Any], key: str, where: Where) -> Mapping[str, Any]:
+    value = doc.get(key, {})
+    if not isinstance(value, dict):
+        raise where.at(key).error("must be a table")
+    return value
+
+
+def _settings(cls: type, doc: Mapping[str, Any], key: str, where: Where) -> Any:
+    try:
+        return settings_from_mapping(cls, _table(doc, key, where), f"{where.file}: {key}")
+    except SettingsError as error:
+        raise ManifestError(str(error)) from None
