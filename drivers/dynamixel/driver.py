@@ -1,0 +1,180 @@
+"""Driver for a chain of Dynamixel X-series servos on one serial port (Protocol 2.0).
+
+Hooks only: :class:`drivers.lifecycle.ManagedDriver` owns the state machine. Every SDK call goes
+through one :class:`drivers.device_thread.DeviceThread` per port, because the SDK's port is not
+thread-safe and its calls block (and spin) while they wait for a reply.
+
+- connect: open the port at ``baud``, ping every configured id (a missing one is named), check
+  the model numbers, and pick Fast Sync Read when the servos answer it (else Sync Read).
+- configure: torque off, position mode.
+- activate: goals := present positions, then torque on. deactivate: hold, torque stays on (an
+  arm under gravity must not drop because streaming stopped). aclose: torque off, port closed.
+- read: one (fast) sync read of present current, velocity and position; the alert bit in any
+  status packet turns into a DeviceFault that names the hardware error bits.
+- write: one sync write of goal positions, clipped to the joint limits and the one-turn range.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Mapping
+from typing import Any, TypeVar
+
+import msgspec
+import structlog
+
+from assurance.reasons import ReasonCode
+from drivers.base import (
+    Applied,
+    Command,
+    CommandKind,
+    ControlConfig,
+    DriverError,
+    DriverInitError,
+    NotConnected,
+    StateSample,
+)
+from drivers.device_thread import DeviceThread
+from drivers.dynamixel.bus import DynamixelBus, RawState
+from drivers.dynamixel.settings import DynamixelSettings
+from drivers.dynamixel.tables import POSITION_MODE_TICKS
+from drivers.dynamixel.units import JointCalibration
+from drivers.settings import settings_from_mapping
+
+T = TypeVar("T")
+log = structlog.get_logger(__name__)
+
+
+class DynamixelDriver:
+    def __init__(self, settings: DynamixelSettings, name: str = "dynamixel") -> None:
+        self.name = name
+        self.settings = settings
+        self.calibration = JointCalibration(
+            offsets=settings.offsets_rad, directions=settings.directions,
+            current_unit_a=settings.current_unit_ma / 1000.0,
+            torque_per_amp=settings.torque_per_amp_nm,
+        )
+        self._tick_lower, self._tick_upper = self.calibration.q_range(*POSITION_MODE_TICKS)
+        self._lower, self._upper = self._tick_lower, self._tick_upper
+        self._thread: DeviceThread | None = None
+        self._bus: DynamixelBus | None = None
+        self._seq = 0
+
+    @classmethod
+    def from_mapping(cls, table: Mapping[str, Any], name: str = "dynamixel") -> DynamixelDriver:
+        """Build from a manifest table; unknown or ill-typed keys raise SettingsError by name."""
+        return cls(settings_from_mapping(DynamixelSettings, table, f"drivers.{name}"), name)
+
+    @property
+    def bus(self) -> DynamixelBus | None:
+        """The connected bus (counters, fast-read choice), for diagnostics and benchmarks."""
+        return self._bus
+
+    # ------------------------------------------------------------------ lifecycle hooks
+
+    async def connect(self) -> None:
+        if self._bus is not None:
+            return
+        thread = DeviceThread(f"{self.name}:{self.settings.port}")
+        bus = DynamixelBus(self.settings, self.name)
+        try:
+            await thread.run(self.settings.call_timeout_s, bus.connect)
+        except BaseException:
+            bus.abandon()
+            thread.close()
+            raise
+        self._thread, self._bus = thread, bus
+        log.info("dynamixel.connected", device=self.name, port=self.settings.port,
+                 models=bus.models, fast_sync_read=bus.uses_fast_sync_read,
+                 low_latency=bus.low_latency)
+
+    async def configure(self, control: ControlConfig) -> None:
+        if control.dof != len(self.settings.ids):
+            raise DriverInitError(self.name, f"the control loop has {control.dof} joints but "
+                                  f"`ids` lists {len(self.settings.ids)} servos; check `ids`")
+        bus = self._connected_bus()
+        await self._run(bus.prepare_position_mode)
+        self._lower = tuple(map(max, control.q_lower, self._tick_lower))
+        self._upper = tuple(map(min, control.q_upper, self._tick_upper))
+
+    async def activate(self) -> None:
+        await self._run(self._connected_bus().enable_torque_holding)
+
+    async def read(self) -> StateSample:
+        raw = await self._run(self._connected_bus().read_state)
+        return self._sample(raw)
+
+    async def write(self, command: Command) -> Applied:
+        if command.kind is CommandKind.POSITION:
+            return await self._write_position(command)
+        if command.kind in (CommandKind.HOLD, CommandKind.STOP):
+            # In position mode "stop" and "hold" are the same: goal := where the servo is now.
+            applied = await self.hold()
+            return msgspec.structs.replace(applied, kind=command.kind)
+        # The servos run in position mode; velocity streaming would need Operating Mode 1.
+        return _refused(command.kind, ReasonCode.CONTROLLER_MODE_MISMATCH)
+
+    async def hold(self) -> Applied:
+        raw = await self._run(self._connected_bus().hold_here)
+        return Applied(kind=CommandKind.HOLD, t_mono_ns=time.monotonic_ns(),
+                       q=self.calibration.q_from_ticks(raw.position))
+
+    async def deactivate(self) -> None:
+        if self._bus is not None:
+            await self.hold()
+
+    async def aclose(self) -> None:
+        """Torque off and close the port. Safe to call twice; releases even when a step fails."""
+        thread, bus = self._thread, self._bus
+        self._thread = self._bus = None
+        if thread is None or bus is None:
+            return
+        try:
+            await thread.run(self.settings.call_timeout_s, bus.release)
+        except DriverError as error:
+            log.warning("dynamixel.release_failed", device=self.name, error=str(error))
+            bus.abandon()  # the worker may still be stuck in the SDK
+        finally:
+            thread.close()
+
+    # ------------------------------------------------------------------ helpers
+
+    async def _write_position(self, command: Command) -> Applied:
+        if len(command.q) != len(self.settings.ids):
+            return _refused(command.kind, ReasonCode.MALFORMED)
+        if not all(math.isfinite(v) for v in command.q):
+            return _refused(command.kind, ReasonCode.NONFINITE)
+        q = tuple(min(max(v, lo), hi)
+                  for v, lo, hi in zip(command.q, self._lower, self._upper, strict=True))
+        ticks = self._ticks_in_range(q)
+        await self._run(self._connected_bus().write_goals, ticks)
+        # ``q`` is what was sent before rounding to whole ticks (at most half a tick, 0.77 mrad).
+        return Applied(kind=command.kind, t_mono_ns=time.monotonic_ns(), q=q)
+
+    def _ticks_in_range(self, q: tuple[float, ...]) -> tuple[int, ...]:
+        low, high = POSITION_MODE_TICKS
+        return tuple(min(max(t, low), high) for t in self.calibration.ticks_from_q(q))
+
+    def _sample(self, raw: RawState) -> StateSample:
+        self._seq += 1
+        return StateSample(
+            seq=self._seq, t_mono_ns=time.monotonic_ns(), source=self.name,
+            q=self.calibration.q_from_ticks(raw.position),
+            qd=self.calibration.qd_from_units(raw.velocity),
+            effort=self.calibration.effort_from_units(raw.current),
+        )
+
+    def _connected_bus(self) -> DynamixelBus:
+        if self._bus is None:
+            raise NotConnected(self.name, f"{self.settings.port} is not open: connect first")
+        return self._bus
+
+    async def _run(self, fn: Callable[..., T], *args: object) -> T:
+        if self._thread is None:
+            raise NotConnected(self.name, f"{self.settings.port} is not open: connect first")
+        return await self._thread.run(self.settings.call_timeout_s, fn, *args)
+
+
+def _refused(kind: CommandKind, reason: ReasonCode) -> Applied:
+    return Applied(kind=kind, t_mono_ns=time.monotonic_ns(), accepted=False, reason=reason)

@@ -1,0 +1,53 @@
+"""Settings of one Dynamixel bus (a manifest's ``[drivers.<name>]`` table)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+SIX_SERVO_ARM_IDS = (1, 2, 3, 4, 5, 6)
+
+
+@dataclass(frozen=True, slots=True)
+class DynamixelSettings:
+    port: str
+    """Serial device of the adapter (``/dev/ttyUSB0``, ``/dev/serial/by-id/...``, a pty)."""
+    baud: int = 1_000_000
+    """Must be in dynamixel_sdk's fixed list and match every servo's Baud Rate (address 8)."""
+    ids: tuple[int, ...] = SIX_SERVO_ARM_IDS
+    """Servo id of each joint, in joint order."""
+    offsets_rad: tuple[float, ...] = (0.0,) * len(SIX_SERVO_ARM_IDS)
+    """Per joint: the shaft angle (rad from centre tick 2048) at which the joint reads zero."""
+    directions: tuple[int, ...] = (1,) * len(SIX_SERVO_ARM_IDS)
+    """Per joint: +1, or -1 for a servo mounted the other way round."""
+    latency_budget_ms: float = 34.0
+    """Added to the wire time of every packet timeout. The SDK hard-codes 34 ms (a 16 ms FTDI
+    latency timer, twice, plus 2); with the latency timer set to 1 ms, 4 ms is enough."""
+    retries: int = 2
+    """Extra attempts after a timed-out or corrupt reply before the link counts as lost."""
+    call_timeout_s: float = 1.0
+    """Deadline of one call on the device thread, retries and diagnosis included."""
+    fast_sync_read: bool = True
+    """Try Fast Sync Read (0x8A) first; falls back to Sync Read if the servos do not answer."""
+    current_unit_ma: float = 2.69
+    """mA per Present Current count: 2.69 on XM430/XM540, 1.0 on XL330."""
+    torque_per_amp_nm: float = 1.78
+    """Torque constant used to report effort (XM430-W350 at 12 V: 4.1 N·m at 2.3 A)."""
+
+    def __post_init__(self) -> None:
+        if not self.port:
+            raise ValueError("port: empty; name the serial device of the U2D2/adapter")
+        if not self.ids:
+            raise ValueError("ids: no servos listed")
+        if len(set(self.ids)) != len(self.ids) or not all(0 <= i <= 252 for i in self.ids):
+            raise ValueError(f"ids: need distinct servo ids in 0..252, got {list(self.ids)}")
+        for key, values in (("offsets_rad", self.offsets_rad), ("directions", self.directions)):
+            if len(values) != len(self.ids):
+                raise ValueError(f"{key}: {len(values)} values for {len(self.ids)} servo ids")
+        if any(d not in (1, -1) for d in self.directions):
+            raise ValueError(f"directions: each must be 1 or -1, got {list(self.directions)}")
+        if self.retries < 0:
+            raise ValueError(f"retries: must be >= 0, got {self.retries}")
+        for key in ("latency_budget_ms", "call_timeout_s", "current_unit_ma",
+                    "torque_per_amp_nm"):
+            if not getattr(self, key) > 0:
+                raise ValueError(f"{key}: must be > 0, got {getattr(self, key)}")

@@ -1,0 +1,96 @@
+"""The X-series control table (Protocol 2.0) as data, from the Robotis e-Manual.
+
+Only the items the driver touches are listed; addresses are shared by every X-series model
+(XL330, XL430, XC430, XM430, XM540, XH430, XH540). What differs per model (current resolution,
+which operating modes exist) lives in settings or in :data:`X_SERIES_MODELS`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from enum import IntEnum, IntFlag
+from types import MappingProxyType
+
+
+@dataclass(frozen=True, slots=True)
+class Register:
+    name: str
+    address: int
+    size: int
+    signed: bool = False
+
+
+MODEL_NUMBER = Register("Model Number", 0, 2)
+FIRMWARE_VERSION = Register("Firmware Version", 6, 1)
+OPERATING_MODE = Register("Operating Mode", 11, 1)
+MAX_POSITION_LIMIT = Register("Max Position Limit", 48, 4)
+MIN_POSITION_LIMIT = Register("Min Position Limit", 52, 4)
+TORQUE_ENABLE = Register("Torque Enable", 64, 1)
+HARDWARE_ERROR_STATUS = Register("Hardware Error Status", 70, 1)
+GOAL_POSITION = Register("Goal Position", 116, 4, signed=True)
+PRESENT_CURRENT = Register("Present Current", 126, 2, signed=True)
+PRESENT_VELOCITY = Register("Present Velocity", 128, 4, signed=True)
+PRESENT_POSITION = Register("Present Position", 132, 4, signed=True)
+
+STATE_BLOCK = (PRESENT_CURRENT, PRESENT_VELOCITY, PRESENT_POSITION)
+"""Read together every cycle: one contiguous block, so one (fast) sync read fetches all three."""
+STATE_BLOCK_START = PRESENT_CURRENT.address
+STATE_BLOCK_SIZE = PRESENT_POSITION.address + PRESENT_POSITION.size - STATE_BLOCK_START
+
+
+class OperatingMode(IntEnum):
+    CURRENT = 0
+    VELOCITY = 1
+    POSITION = 3
+    EXTENDED_POSITION = 4
+    CURRENT_BASED_POSITION = 5
+    PWM = 16
+
+
+class HardwareError(IntFlag):
+    """Bits of Hardware Error Status (70). Any of them latches until reboot or power cycle."""
+
+    INPUT_VOLTAGE = 0x01
+    OVERHEATING = 0x04
+    MOTOR_ENCODER = 0x08
+    ELECTRICAL_SHOCK = 0x10
+    OVERLOAD = 0x20
+
+
+HARDWARE_ERROR_NAMES = MappingProxyType({
+    HardwareError.INPUT_VOLTAGE: "input voltage out of range",
+    HardwareError.OVERHEATING: "overheating",
+    HardwareError.MOTOR_ENCODER: "motor encoder error",
+    HardwareError.ELECTRICAL_SHOCK: "electrical shock (short circuit or power failure)",
+    HardwareError.OVERLOAD: "overload",
+})
+
+ERRBIT_ALERT = 0x80
+"""Status packet error byte: the servo has a hardware error; read Hardware Error Status."""
+
+TICKS_PER_REV = 4096
+CENTRE_TICK = 2048
+POSITION_MODE_TICKS = (0, 4095)
+"""Goal Position range in position mode (one turn); the servo refuses goals outside it."""
+VELOCITY_UNIT_RPM = 0.229
+"""Present Velocity counts 0.229 rev/min on every X-series model."""
+
+X_SERIES_MODELS = MappingProxyType({
+    1020: "XM430-W350",
+    1030: "XM430-W210",
+    1060: "XL430-W250",
+    1070: "XC430-W150",
+    1120: "XM540-W270",
+    1190: "XL330-M077",
+    1200: "XL330-M288",
+})
+"""Model numbers (address 0) this driver knows to share the table above."""
+
+
+def hardware_error_names(status: int) -> list[str]:
+    """The human names of the bits set in a Hardware Error Status byte, lowest bit first."""
+    names = [text for bit, text in HARDWARE_ERROR_NAMES.items() if status & bit]
+    unknown = status & ~sum(HARDWARE_ERROR_NAMES)
+    if unknown:
+        names.append(f"unknown bits 0x{unknown:02x}")
+    return names

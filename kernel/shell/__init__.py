@@ -1,0 +1,1 @@
+"""The thin asyncio shell: rates, deadlines, task supervision and bounded channels."""

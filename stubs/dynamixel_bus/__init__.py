@@ -1,0 +1,11 @@
+"""A Dynamixel Protocol 2.0 bus of X-series servos on a pseudo-terminal, backed by a plant.
+
+Run it as ``python -m stubs.dynamixel_bus --ids 1,2,3,4,5,6``: it prints
+``READY {"port": "/dev/pts/N", "fault_port": P}`` once the pty answers. The real
+``dynamixel_sdk`` opens ``port`` like a U2D2 adapter. Faults are injected over ``fault_port``
+(:func:`stubs.fault_control.inject`): ``silent``, ``crc``, ``hardware_error``, ``clear``.
+
+The codec here (``crc``, ``packet``) and the control table (``control_table``) are written from
+the Robotis e-Manual, independently of ``drivers.dynamixel``: an emulator that shared the
+driver's tables would hide the driver's mistakes instead of catching them.
+"""
