@@ -30,7 +30,10 @@ class FaultControlServer:
         self._server = socketserver.ThreadingTCPServer((host, port), _Request)
         self._server.daemon_threads = True
         self.address = self._server.server_address
-        self._thread = threading.Thread(target=self._server.serve_forever, daemon=True)
+        # A short poll interval keeps stop() from waiting out serve_forever's 0.5 s default.
+        self._thread = threading.Thread(
+            target=self._server.serve_forever, kwargs={"poll_interval": 0.05}, daemon=True
+        )
 
     def start(self) -> FaultControlServer:
         self._thread.start()

@@ -1,0 +1,242 @@
+"""Blocking steps that bring drives up, one node at a time: only ever run on the device thread.
+
+Each step either leaves the drive as described or raises a driver error naming the node and
+what to check. Steps use SDO (answered by the drive whatever its PDO state) except the 402
+state changes, which go through canopen's ``BaseNode402.state`` and need the bus cycle running.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+
+from canopen.sdo import SdoAbortedError, SdoCommunicationError
+
+from drivers.base import ControlConfig, DriverInitError
+from drivers.canopen402._sdk import Node402, PdoMap, PdoMaps
+from drivers.canopen402.health import HealthMonitor
+from drivers.canopen402.settings import CiA402Settings
+from drivers.canopen402.tables import (
+    CSP_MODE_NAME,
+    DEVICE_PROFILE_402,
+    EMCY_NAMES,
+    QUICK_STOP_HOLD,
+    Command,
+    DriveState,
+    Index,
+    Mode,
+    NmtState,
+    decode_state,
+)
+from drivers.canopen402.units import JointScale
+
+SYNCHRONOUS = 1
+"""PDO transmission type: RPDO applied at, TPDO sent on, every SYNC."""
+
+RPDO_LAYOUT = ((Index.CONTROLWORD, Index.TARGET_POSITION, Index.MODES_OF_OPERATION),)
+TPDO_LAYOUT = (
+    (Index.STATUSWORD, Index.POSITION_ACTUAL, Index.TORQUE_ACTUAL),
+    (Index.VELOCITY_ACTUAL, Index.MODES_DISPLAY),
+)
+FAULT_RESET_TIMEOUT_S = 0.5
+
+
+def probe(node: Node402, settings: CiA402Settings) -> None:
+    """Check the node answers SDO and is a CiA 402 drive."""
+    try:
+        device_type = node.sdo[Index.DEVICE_TYPE].raw
+    except SdoCommunicationError as error:
+        raise DriverInitError(
+            settings.name, f"node {node.id} does not answer on {settings.describe_bus()} "
+            f"(no SDO reply within {settings.sdo_timeout_s} s): check the node id, that the drive "
+            "is powered, the wiring and termination, and the bitrate",
+        ) from error
+    except SdoAbortedError as error:
+        raise DriverInitError(settings.name, f"node {node.id} refused to report its device "
+                              f"type (0x1000): {error}") from error
+    if device_type & 0xFFFF != DEVICE_PROFILE_402:
+        raise DriverInitError(
+            settings.name, f"node {node.id} is not a CiA 402 drive: device type 0x{device_type:08X}"
+            f" (profile {device_type & 0xFFFF}); check node_ids",
+        )
+
+
+def start_heartbeats(nodes: Sequence[Node402], settings: CiA402Settings,
+                     health: HealthMonitor) -> None:
+    """Make every drive produce heartbeats, then wait for the first of each, all together.
+
+    (canopen's ``wait_for_bootup`` is racy: a boot-up sent before the wait starts is missed.)
+    """
+    since = time.monotonic()
+    for node in nodes:
+        node.sdo[Index.HEARTBEAT_TIME].raw = settings.heartbeat_period_ms
+    for node in nodes:
+        if not health.wait_heartbeat(node.id, since, settings.boot_timeout_s):
+            raise DriverInitError(
+                settings.name, f"node {node.id} answers SDO but sent no heartbeat within "
+                f"{settings.boot_timeout_s} s of 0x1017 := {settings.heartbeat_period_ms} ms",
+            )
+
+
+def clear_fault(node: Node402, settings: CiA402Settings, health: HealthMonitor) -> None:
+    """Refuse a drive that is in FAULT, or reset it when the settings allow it."""
+    if decode_state(node.sdo[Index.STATUSWORD].raw) not in (
+        DriveState.FAULT, DriveState.FAULT_REACTION_ACTIVE
+    ):
+        health.clear_emcy(node.id)
+        return
+    detail = _fault_detail(node)
+    if not settings.reset_faults_on_connect:
+        raise DriverInitError(
+            settings.name, f"node {node.id} is in FAULT at start ({detail}); remove the cause, "
+            "then reset it on the drive or set reset_faults_on_connect = true",
+        )
+    node.sdo[Index.CONTROLWORD].raw = Command.DISABLE_VOLTAGE
+    node.sdo[Index.CONTROLWORD].raw = Command.FAULT_RESET  # the reset acts on the rising edge
+    deadline = time.monotonic() + FAULT_RESET_TIMEOUT_S
+    while decode_state(node.sdo[Index.STATUSWORD].raw) is DriveState.FAULT:
+        if time.monotonic() > deadline:
+            raise DriverInitError(settings.name, f"node {node.id} stays in FAULT after a fault "
+                                  f"reset ({detail}): the cause is still present")
+        time.sleep(0.01)
+    health.clear_emcy(node.id)
+
+
+def _fault_detail(node: Node402) -> str:
+    code = node.sdo[Index.ERROR_CODE].raw
+    register = node.sdo[Index.ERROR_REGISTER].raw
+    name = EMCY_NAMES.get(code, "see the drive manual")
+    return f"error code 0x{code:04X} ({name}), error register 0x{register:02X}"
+
+
+def write_parameters(node: Node402, scale: JointScale, control: ControlConfig,
+                     joint: int) -> int:
+    """Cycle time, interpolation period, quick-stop behaviour and position limits.
+
+    Returns:
+        The motor rated torque (0x6076, mN·m), the unit of the torque the drive reports.
+    """
+    period_us = control.period_ns // 1000
+    node.sdo[Index.COMM_CYCLE_PERIOD].raw = period_us
+    value, exponent = interpolation_period(period_us)
+    node.sdo[Index.INTERPOLATION_PERIOD][1].raw = value
+    node.sdo[Index.INTERPOLATION_PERIOD][2].raw = exponent
+    node.sdo[Index.QUICK_STOP_OPTION].raw = QUICK_STOP_HOLD
+    low, high = sorted((scale.to_counts(control.q_lower[joint]),
+                        scale.to_counts(control.q_upper[joint])))
+    node.sdo[Index.SOFTWARE_LIMITS][1].raw = low
+    node.sdo[Index.SOFTWARE_LIMITS][2].raw = high
+    return int(node.sdo[Index.RATED_TORQUE].raw)
+
+
+EMULATED_INTERFACES = frozenset({"virtual", "udp_multicast"})
+"""Buses without a bitrate: their limit is CPU time, which the bus cycle's latency shows."""
+
+
+def frame_bits(data_bytes: int) -> int:
+    """Worst-case length of a CAN 2.0A data frame with bit stuffing (ISO 11898-1)."""
+    return 47 + 8 * data_bytes + (34 + 8 * data_bytes - 1) // 4
+
+
+def bus_load(drives: int, period_s: float, bitrate: int) -> float:
+    """Fraction of the bitrate one bus cycle of this layout takes, worst case.
+
+    Per drive: the RPDO and every TPDO; per cycle: one SYNC.
+    """
+    sizes = [_layout_bytes(layout) for layout in (*RPDO_LAYOUT, *TPDO_LAYOUT)]
+    bits = drives * sum(frame_bits(size) for size in sizes) + frame_bits(0)
+    return bits / period_s / bitrate
+
+
+def _layout_bytes(indices: tuple[Index, ...]) -> int:
+    return sum(OBJECT_BYTES[index] for index in indices)
+
+
+OBJECT_BYTES = {
+    Index.CONTROLWORD: 2, Index.TARGET_POSITION: 4, Index.MODES_OF_OPERATION: 1,
+    Index.STATUSWORD: 2, Index.POSITION_ACTUAL: 4, Index.TORQUE_ACTUAL: 2,
+    Index.VELOCITY_ACTUAL: 4, Index.MODES_DISPLAY: 1,
+}
+
+
+def check_bus_load(settings: CiA402Settings, period_s: float) -> None:
+    """Refuse a control rate a physical CAN bus cannot carry with this PDO layout."""
+    if settings.interface in EMULATED_INTERFACES:
+        return
+    load = bus_load(len(settings.node_ids), period_s, settings.bitrate)
+    if load > 1.0:
+        raise DriverInitError(
+            settings.name, f"{len(settings.node_ids)} drives at {1 / period_s:.0f} Hz need "
+            f"{100 * load:.0f}% of {settings.bitrate} bit/s (worst case): lower the control "
+            "rate or split the drives over more CAN buses",
+        )
+
+
+def interpolation_period(period_us: int) -> tuple[int, int]:
+    """0x60C2 as (value, exponent): period = value * 10**exponent s, value an UNSIGNED8.
+
+    The coarsest exact unit first: many drives accept only milliseconds here.
+    """
+    for exponent in (-3, -4, -5, -6):
+        scale = 10 ** (exponent + 6)
+        if period_us % scale == 0 and period_us // scale <= 0xFF:
+            return period_us // scale, exponent
+    return min(round(period_us / 1000), 0xFF), -3
+
+
+def map_pdos(node: Node402) -> None:
+    """RPDO1: controlword + target + mode; TPDO1: statusword + position + torque; TPDO2: velocity +
+    mode display.
+
+    Read the drive's current PDO set first, so that PDOs it had enabled and this layout does not
+    use are saved back disabled, not left running.
+    """
+    node.rpdo.read()
+    node.tpdo.read()
+    _apply_layout(node.rpdo, RPDO_LAYOUT)
+    _apply_layout(node.tpdo, TPDO_LAYOUT)
+    node.pdo.save()
+    node.setup_402_state_machine(read_pdos=False)
+
+
+def _apply_layout(maps: PdoMaps, layout: tuple[tuple[Index, ...], ...]) -> None:
+    for number in list(maps):
+        pdo: PdoMap = maps[number]
+        pdo.clear()
+        pdo.enabled = number <= len(layout)
+        if not pdo.enabled:
+            continue
+        pdo.cob_id = pdo.cob_id or pdo.predefined_cob_id
+        pdo.trans_type = SYNCHRONOUS
+        for index in layout[number - 1]:
+            pdo.add_variable(index)
+
+
+def enter_operational(nodes: Sequence[Node402], settings: CiA402Settings,
+                      health: HealthMonitor) -> None:
+    """NMT start, confirmed by each drive's own heartbeat (NMT commands are unacknowledged)."""
+    since = time.monotonic()
+    for node in nodes:
+        node.nmt.state = "OPERATIONAL"
+    timeout_s = settings.boot_timeout_s + 3 * settings.heartbeat_period_ms / 1000.0
+    for node in nodes:
+        if not health.wait_heartbeat(node.id, since, timeout_s, NmtState.OPERATIONAL):
+            raise DriverInitError(settings.name, f"node {node.id} did not report OPERATIONAL "
+                                  f"within {timeout_s:.2f} s of the NMT start command")
+
+
+def select_csp(node: Node402, settings: CiA402Settings) -> None:
+    """Switch to cyclic synchronous position and wait for 0x6061 to confirm it ourselves.
+
+    canopen's ``op_mode`` setter gives up after a fixed 0.5 s and then only logs a warning.
+    """
+    node.op_mode = CSP_MODE_NAME
+    deadline = time.monotonic() + settings.state_timeout_s
+    while (shown := node.sdo[Index.MODES_DISPLAY].raw) != Mode.CYCLIC_SYNCHRONOUS_POSITION:
+        if time.monotonic() > deadline:
+            raise DriverInitError(
+                settings.name, f"node {node.id} did not confirm {CSP_MODE_NAME} mode within "
+                f"{settings.state_timeout_s} s: 0x6061 reads {shown} (0x6502 supported modes "
+                f"0x{node.sdo[Index.SUPPORTED_MODES].raw:08X})",
+            )
+        time.sleep(0.01)

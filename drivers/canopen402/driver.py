@@ -1,0 +1,396 @@
+"""CiA 402 servo drives on CANopen (canopen ``BaseNode402``, one node per joint), in CSP mode.
+
+connect: open the bus, NMT pre-operational, check every node answers and is a 402 drive, start
+its heartbeat, refuse (or, if allowed, reset) a drive in FAULT. configure: cycle time, limits,
+quick-stop option and PDO mapping over SDO, NMT operational, the bus cycle (RPDOs + SYNC) at the
+control period, CSP confirmed. activate: target := actual, then up to OPERATION ENABLED.
+write: targets into the RPDOs, then RPDOs + SYNC; read: the latest TPDOs, converted to SI units.
+
+Blocking canopen calls (SDO, waits for a TPDO) run on the device thread only: on the loop thread
+they would wait for a frame that the loop itself has to dispatch.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import functools
+import math
+import time
+from collections.abc import Callable, Mapping
+from typing import Any, TypeVar
+
+import can
+from canopen.sdo import SdoAbortedError, SdoCommunicationError
+
+from assurance.reasons import ReasonCode
+from drivers.base import (
+    Applied,
+    Command,
+    CommandKind,
+    ControlConfig,
+    DeviceFault,
+    DriverError,
+    DriverInitError,
+    DriverIOError,
+    DriverTimeout,
+    NotConnected,
+    StateSample,
+)
+from drivers.canopen402 import bringup
+from drivers.canopen402._sdk import Node402, PdoVariable
+from drivers.canopen402.cycle import BusCycle
+from drivers.canopen402.drive_state import FAULTY, current_state, walk_to
+from drivers.canopen402.health import HealthMonitor
+from drivers.canopen402.link import Link, build_link
+from drivers.canopen402.settings import CiA402Settings
+from drivers.canopen402.tables import Command as Controlword
+from drivers.canopen402.tables import DriveState, Index
+from drivers.device_thread import DeviceThread
+
+T = TypeVar("T")
+
+FIRST_CYCLE_TIMEOUT_S = 1.0
+
+
+class CiA402Driver:
+    def __init__(self, settings: CiA402Settings) -> None:
+        self.settings = settings
+        self.name = settings.name
+        self._scales = settings.joint_scales()
+        self._health = HealthMonitor(settings)
+        self._thread: DeviceThread | None = None
+        self._link: Link | None = None
+        self._cycle: BusCycle | None = None
+        self._control: ControlConfig | None = None
+        self._rated_torque: tuple[int, ...] = ()
+        self._targets: tuple[PdoVariable, ...] = ()
+        self._active = False
+        self._powered = False
+        """Some drive may be enabled: set before an enable starts, so a half-done activate
+        is still quick-stopped on close."""
+        self._stop_requested = False
+        self._closed = False
+        self._seq = 0
+
+    @classmethod
+    def from_mapping(cls, table: Mapping[str, Any], where: str = "canopen402") -> CiA402Driver:
+        return cls(CiA402Settings.from_mapping(table, where))
+
+    @property
+    def cycle(self) -> BusCycle | None:
+        """The bus cycle (SYNC count, round-trip latencies); None before configure."""
+        return self._cycle
+
+    @property
+    def link(self) -> Link | None:
+        """The open bus, canopen network and nodes, for diagnostics; None when closed."""
+        return self._link
+
+    # -- lifecycle hooks -----------------------------------------------------------------------
+
+    async def connect(self) -> None:
+        if self._link is not None or self._closed:
+            raise DriverInitError(self.name, "connect needs a fresh driver object")
+        self._thread = DeviceThread(self.name)
+        try:
+            self._link = await self._blocking("open the CAN bus", build_link, self.settings)
+            for node in self._link.nodes:
+                self._health.attach(node)
+            self._link.start_notifier(asyncio.get_running_loop())
+            await self._blocking("bring-up", self._bring_up)
+        except BaseException:
+            await self.aclose()
+            raise
+
+    def _bring_up(self) -> None:
+        nodes = self._nodes()
+        for node in nodes:
+            node.nmt.state = "PRE-OPERATIONAL"  # SDO configuration is allowed from here on
+        for node in nodes:
+            bringup.probe(node, self.settings)
+        bringup.start_heartbeats(nodes, self.settings, self._health)
+        for node in nodes:
+            bringup.clear_fault(node, self.settings, self._health)
+
+    async def configure(self, control: ControlConfig) -> None:
+        nodes = self._nodes()
+        if control.dof != len(nodes):
+            raise DriverInitError(self.name, f"the control loop has {control.dof} joints but "
+                                  f"node_ids lists {len(nodes)} drives")
+        bringup.check_bus_load(self.settings, control.period_ns * 1e-9)
+        self._control = control
+        self._rated_torque = await self._blocking("PDO and parameter setup",
+                                                  self._configure_drives, control)
+        self._start_cycle(control)
+        await self._blocking("NMT start", bringup.enter_operational, self._nodes(),
+                             self.settings, self._health)
+        await self._await_cycle("the first TPDOs after NMT start")
+        await self._blocking("CSP mode and SWITCH ON DISABLED", self._settle_drives)
+        self._check()
+
+    def _configure_drives(self, control: ControlConfig) -> tuple[int, ...]:
+        rated = []
+        for joint, node in enumerate(self._nodes()):
+            try:
+                rated.append(bringup.write_parameters(node, self._scales[joint], control, joint))
+            except ValueError as error:  # a limit that does not fit INTEGER32 counts
+                raise DriverInitError(self.name, f"joint {joint} (node {node.id}): {error}; "
+                                      "check counts_per_rev and the joint limits") from error
+            bringup.map_pdos(node)
+            self._stop_echo(node)
+        return tuple(rated)
+
+    def _stop_echo(self, node: Node402) -> None:
+        """Unsubscribe our own RPDOs: a bus that echoes frames (udp_multicast) would otherwise
+        make canopen treat them as received and overwrite the setpoints we are sending."""
+        network = self._require_link().network
+        for number in list(node.rpdo):
+            pdo = node.rpdo[number]
+            subscribed = network.subscribers.get(pdo.cob_id or -1, [])
+            if pdo.enabled and pdo.on_message in subscribed:
+                network.unsubscribe(pdo.cob_id or -1, pdo.on_message)
+
+    def _start_cycle(self, control: ControlConfig) -> None:
+        nodes = self._nodes()
+        self._targets = tuple(node.rpdo[1][Index.TARGET_POSITION] for node in nodes)
+        tpdos = [(node.id, node.tpdo[n]) for node in nodes for n in list(node.tpdo)]
+        tpdos = [(node_id, pdo) for node_id, pdo in tpdos if pdo.enabled and pdo.cob_id]
+        self._cycle = BusCycle(
+            self._require_link().network, [node.rpdo[1] for node in nodes],
+            [(node_id, int(pdo.cob_id or 0)) for node_id, pdo in tpdos],
+            control.period_ns * 1e-9,
+        )
+        for node_id, pdo in tpdos:
+            pdo.add_callback(functools.partial(self._on_tpdo, node_id, int(pdo.cob_id or 0)))
+        self._cycle.start()
+
+    def _on_tpdo(self, node_id: int, cob_id: int, _pdo: object) -> None:
+        self._health.on_tpdo(node_id)
+        if self._cycle is not None:
+            self._cycle.on_tpdo(node_id, cob_id)
+
+    def _settle_drives(self) -> None:
+        for node in self._nodes():
+            bringup.select_csp(node, self.settings)
+            walk_to(node, DriveState.SWITCH_ON_DISABLED, self.settings)
+
+    async def activate(self) -> None:
+        self._check()
+        self._hold_targets()  # a CSP drive follows its target at once: start from where it is
+        self._stop_requested = False
+        self._powered = True
+        await self._blocking("enable", self._for_each, walk_to, DriveState.OPERATION_ENABLED,
+                             self.settings)
+        self._active = True
+        self._check()
+
+    async def read(self) -> StateSample:
+        self._check()
+        return self._sample()
+
+    async def next_sample(self, timeout_s: float = 1.0) -> StateSample:
+        """The sample answering the most recent SYNC: waits until all its TPDOs are in."""
+        await self._await_cycle("the TPDOs of the last SYNC", timeout_s)
+        return await self.read()
+
+    async def write(self, command: Command) -> Applied:
+        self._check()
+        if command.kind is CommandKind.POSITION:
+            return self._write_position(command)
+        if command.kind is CommandKind.HOLD:
+            return await self.hold()
+        if command.kind is CommandKind.STOP:
+            return self._quick_stop()
+        return self._refuse(command.kind, ReasonCode.CONTROLLER_MODE_MISMATCH)
+
+    async def hold(self) -> Applied:
+        self._check()
+        q = self._hold_targets()
+        if self._active and self._stop_requested:  # leave QUICK STOP ACTIVE (transition 16)
+            await self._blocking("re-enable after quick stop", self._for_each, walk_to,
+                                 DriveState.OPERATION_ENABLED, self.settings)
+            self._stop_requested = False
+        if self._active:
+            self._tick()
+        return Applied(kind=CommandKind.HOLD, t_mono_ns=time.monotonic_ns(), q=q)
+
+    async def deactivate(self) -> None:
+        self._active = False
+        self._hold_targets()
+        await self._blocking("disable", self._for_each, self._disable_unless_faulted)
+        self._powered = self._stop_requested = False
+        self._check()
+
+    def _disable_unless_faulted(self, node: Node402) -> None:
+        # A faulted drive stays as it is: walking it anywhere would mean resetting the fault.
+        if current_state(node) not in FAULTY:
+            walk_to(node, DriveState.SWITCH_ON_DISABLED, self.settings)
+
+    async def aclose(self) -> None:
+        """Quick-stop enabled drives, stop the cycle, NMT pre-operational, release the bus."""
+        if self._closed:
+            return
+        self._closed = True
+        try:
+            self._quick_stop_on_close()
+        finally:
+            if self._cycle is not None:
+                self._cycle.stop()
+            await self._close_link()
+            if self._thread is not None:
+                self._thread.close()
+
+    # -- the cyclic path -----------------------------------------------------------------------
+
+    def _write_position(self, command: Command) -> Applied:
+        control = self._require_control()
+        if self._stop_requested:
+            return self._refuse(command.kind, ReasonCode.CONTROLLER_REJECT)
+        if len(command.q) != control.dof:
+            return self._refuse(command.kind, ReasonCode.MALFORMED)
+        if not all(math.isfinite(v) for v in command.q):
+            return self._refuse(command.kind, ReasonCode.NONFINITE)
+        counts = [scale.to_counts(min(max(q, lo), hi)) for scale, q, lo, hi in zip(
+            self._scales, command.q, control.q_lower, control.q_upper, strict=True)]
+        for target, value in zip(self._targets, counts, strict=True):
+            target.raw = value
+        self._tick()
+        applied = tuple(scale.to_rad(c) for scale, c in zip(self._scales, counts, strict=True))
+        return Applied(kind=CommandKind.POSITION, t_mono_ns=time.monotonic_ns(), q=applied)
+
+    def _quick_stop(self) -> Applied:
+        for node in self._nodes():
+            node.controlword = Controlword.QUICK_STOP
+        self._stop_requested = True
+        self._tick()
+        return Applied(kind=CommandKind.STOP, t_mono_ns=time.monotonic_ns(),
+                       q=self._sample().q)
+
+    def _hold_targets(self) -> tuple[float, ...]:
+        """Set every target to the drive's actual position; returns it in radians."""
+        q = []
+        for node, scale, target in zip(self._nodes(), self._scales, self._targets, strict=True):
+            counts = node.tpdo_values[Index.POSITION_ACTUAL]
+            target.raw = counts
+            q.append(scale.to_rad(counts))
+        return tuple(q)
+
+    def _tick(self) -> None:
+        try:
+            self._require_cycle().tick(from_write=True)
+        except can.CanError as error:
+            raise DriverIOError(self.name, f"sending on {self.settings.describe_bus()} failed: "
+                                f"{error}") from error
+
+    def _sample(self) -> StateSample:
+        q, qd, effort = [], [], []
+        for node, scale, rated in zip(self._nodes(), self._scales, self._rated_torque,
+                                      strict=True):
+            values = node.tpdo_values
+            q.append(scale.to_rad(values[Index.POSITION_ACTUAL]))
+            qd.append(scale.velocity_to_rad(values[Index.VELOCITY_ACTUAL]))
+            effort.append(scale.torque_to_nm(values[Index.TORQUE_ACTUAL], rated))
+        self._seq += 1
+        return StateSample(seq=self._seq, t_mono_ns=time.monotonic_ns(), source=self.name,
+                           q=tuple(q), qd=tuple(qd), effort=tuple(effort))
+
+    def _refuse(self, kind: CommandKind, reason: ReasonCode) -> Applied:
+        return Applied(kind=kind, t_mono_ns=time.monotonic_ns(), accepted=False, reason=reason)
+
+    # -- checks --------------------------------------------------------------------------------
+
+    def drive_states(self) -> dict[int, DriveState]:
+        """Each node's 402 state from its last statusword."""
+        return {node.id: current_state(node) for node in self._nodes()}
+
+    def _check(self) -> None:
+        """Raise what the drives reported since the last call (EMCY, silence, state)."""
+        self._require_link()
+        self._health.check(expect_pdos=self._cycle is not None)
+        if self._cycle is None:
+            return
+        if self._cycle.error is not None:
+            raise DriverIOError(self.name, f"the bus cycle could not send on "
+                                f"{self.settings.describe_bus()}: {self._cycle.error}")
+        for node in self._nodes():
+            self._check_state(node, current_state(node))
+
+    def _check_state(self, node: Node402, state: DriveState) -> None:
+        if state in FAULTY:
+            raise DeviceFault(self.name, f"node {node.id} reports {state} (statusword "
+                              f"0x{node.statusword:04X})", ReasonCode.CONTROLLER_FAULT)
+        allowed = {DriveState.OPERATION_ENABLED}
+        if self._stop_requested:
+            allowed.add(DriveState.QUICK_STOP_ACTIVE)
+        if self._active and state not in allowed:
+            cause = " (a quick stop the drive made itself)" if (
+                state is DriveState.QUICK_STOP_ACTIVE) else ""
+            raise DeviceFault(self.name, f"node {node.id} left OPERATION ENABLED: it reports "
+                              f"{state}{cause}", ReasonCode.CONTROLLER_FAULT)
+
+    # -- plumbing ------------------------------------------------------------------------------
+
+    async def _blocking(self, label: str, fn: Callable[..., T], *args: object) -> T:
+        """Run a blocking step on the device thread, naming the step in any error."""
+        if self._thread is None:
+            raise NotConnected(self.name, f"{label}: not connected")
+        try:
+            return await self._thread.run(self.settings.call_timeout_s, fn, *args)
+        except DriverError:
+            raise
+        except (SdoCommunicationError, SdoAbortedError) as error:
+            raise DriverInitError(self.name, f"{label}: SDO failed: {error}") from error
+        except can.CanError as error:
+            raise DriverIOError(self.name, f"{label}: {error}") from error
+
+    def _for_each(self, step: Callable[..., None], *args: object) -> None:
+        for node in self._nodes():
+            step(node, *args)
+
+    async def _await_cycle(self, what: str, timeout_s: float = FIRST_CYCLE_TIMEOUT_S) -> None:
+        cycle = self._require_cycle()
+        if not await cycle.wait_completed(cycle.cycle, timeout_s):
+            raise DriverTimeout(self.name, f"{what} did not all arrive within {timeout_s} s")
+
+    def _quick_stop_on_close(self) -> None:
+        if not (self._powered and self._cycle is not None and self._link is not None):
+            return
+        self._active = self._powered = False
+        try:
+            for node in self._link.nodes:
+                node.controlword = Controlword.QUICK_STOP
+            self._cycle.tick()
+        except (can.CanError, RuntimeError):
+            pass  # the link is already gone: nothing more reaches the drives from here
+
+    async def _close_link(self) -> None:
+        link, self._link = self._link, None
+        if link is None:
+            return
+        try:
+            for node in link.nodes:
+                node.nmt.state = "PRE-OPERATIONAL"
+        except (can.CanError, RuntimeError):
+            pass  # best effort: closing goes on
+        if link.loop_bound:
+            link.close()  # its reader is an fd on this loop: remove it here
+        else:
+            await asyncio.to_thread(link.close)
+
+    def _nodes(self) -> tuple[Node402, ...]:
+        return self._require_link().nodes
+
+    def _require_link(self) -> Link:
+        if self._link is None:
+            raise NotConnected(self.name, "not connected" if not self._closed else "closed")
+        return self._link
+
+    def _require_cycle(self) -> BusCycle:
+        if self._cycle is None:
+            raise NotConnected(self.name, "not configured: no bus cycle yet")
+        return self._cycle
+
+    def _require_control(self) -> ControlConfig:
+        if self._control is None:
+            raise NotConnected(self.name, "not configured")
+        return self._control

@@ -1,0 +1,172 @@
+"""Open and close the CAN bus, the canopen network and one ``BaseNode402`` per joint.
+
+The one place that constructs vendor objects. Received frames reach canopen through a python-can
+``Notifier``: bound to the event loop when the bus has a file descriptor (``udp_multicast``,
+``socketcan``), so frames are dispatched by the loop with no reader thread; on ``virtual``, which
+has none, a reader thread dispatches them (binding it to the loop would only add a
+``call_soon_threadsafe`` hop per frame).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import copy
+import functools
+import logging
+import os
+import socket
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import cast
+
+import can
+import canopen
+from canopen.objectdictionary import ODVariable
+
+from drivers.base import DriverInitError
+from drivers.canopen402._sdk import CanBus, Network, Node402, Notifier
+from drivers.canopen402.settings import CiA402Settings
+from drivers.canopen402.tables import DEFAULT_EDS
+
+log = logging.getLogger(__name__)
+
+UDP_RECEIVE_BUFFER = 4 * 1024 * 1024
+"""Requested SO_RCVBUF; Linux caps it at net.core.rmem_max (4 MB on this machine kind)."""
+NOTIFIER_POLL_S = 0.05
+"""Reader-thread receive timeout: bounds how long closing waits for the thread to notice."""
+
+
+@dataclass(slots=True)
+class Link:
+    settings: CiA402Settings
+    bus: CanBus
+    network: Network
+    nodes: tuple[Node402, ...]
+    notifier: Notifier | None = None
+    loop_bound: bool = False
+    """True when the notifier runs on the event loop (it must then be stopped there too)."""
+
+    def start_notifier(self, loop: asyncio.AbstractEventLoop) -> None:
+        """Start dispatching received frames. Call on the loop thread (``add_reader``)."""
+        try:
+            fd = self.bus.fileno()
+        except NotImplementedError:
+            fd = -1
+        self.loop_bound = fd >= 0
+        self.notifier = can.Notifier(
+            cast(can.BusABC, self.bus), self.network.listeners, timeout=NOTIFIER_POLL_S,
+            loop=loop if self.loop_bound else None,
+        )
+        self.network.notifier = self.notifier
+
+    def close(self) -> None:
+        """Stop the notifier and release the bus; never raises (it runs on the way out)."""
+        try:
+            if self.notifier is not None:
+                self.notifier.stop(timeout=1.0)
+        except Exception:  # closing must go on; the bus below is what matters
+            log.exception("%s: stopping the CAN notifier failed", self.settings.name)
+        finally:
+            self.network.notifier = None
+            self.network.bus = None
+            self.bus.shutdown()
+
+
+def build_link(settings: CiA402Settings) -> Link:
+    """Open the bus and describe every drive; blocking, so it runs on the device thread.
+
+    Raises:
+        DriverInitError: unknown interface, unreadable EDS, or a bus that does not open.
+    """
+    _check_interface(settings)
+    eds = _eds_path(settings)
+    bus = _open_bus(settings)
+    try:
+        widen_receive_buffer(cast(CanBus, bus))
+        network = cast(Network, canopen.Network(bus))
+        nodes = tuple(_add_node(network, node_id, eds, settings) for node_id in settings.node_ids)
+    except Exception as error:
+        bus.shutdown()
+        raise DriverInitError(settings.name, f"cannot load the object dictionary {eds}: "
+                              f"{error}") from error
+    return Link(settings, cast(CanBus, bus), network, nodes)
+
+
+def widen_receive_buffer(bus: CanBus, size: int = UDP_RECEIVE_BUFFER) -> None:
+    """Let a UDP-backed bus ride through a stall of its reader without dropping frames.
+
+    On ``udp_multicast`` every process also receives its own frames back, some 10k datagrams/s
+    with six drives at 500 Hz; the default 212 KB receive buffer overflows after a ~25 ms
+    pause of the reader (a busy core, a GC pass), and a dropped SDO reply fails the bring-up.
+    Works on a duplicate of the public ``fileno()``: same socket, no private attributes.
+    """
+    try:
+        fd = bus.fileno()
+    except NotImplementedError:
+        return
+    if fd < 0:
+        return
+    with socket.socket(fileno=os.dup(fd)) as sock:
+        if sock.type == socket.SOCK_DGRAM:
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, size)
+
+
+def _check_interface(settings: CiA402Settings) -> None:
+    if settings.interface not in can.interfaces.VALID_INTERFACES:
+        known = ", ".join(sorted(can.interfaces.VALID_INTERFACES))
+        raise DriverInitError(
+            settings.name, f"unknown CAN interface {settings.interface!r} (python-can knows: "
+            f"{known}); check 'interface' in the manifest",
+        )
+
+
+def _eds_path(settings: CiA402Settings) -> Path:
+    eds = Path(settings.eds_path) if settings.eds_path else DEFAULT_EDS
+    if not eds.is_file():
+        raise DriverInitError(settings.name, f"EDS file {eds} does not exist; check 'eds_path'")
+    return eds
+
+
+def _open_bus(settings: CiA402Settings) -> can.BusABC:
+    try:
+        return can.Bus(interface=settings.interface, channel=settings.channel,
+                       **settings.bus_options())
+    except (can.CanError, OSError, ValueError, ImportError) as error:
+        raise DriverInitError(
+            settings.name, f"cannot open the CAN bus ({settings.describe_bus()}): {error}; check "
+            "that the interface exists and is up, and the channel name",
+        ) from error
+
+
+def load_object_dictionary(eds: Path, node_id: int = 0) -> canopen.ObjectDictionary:
+    """A private copy of the parsed EDS, with ``$NODEID`` defaults (COB-IDs) for ``node_id``.
+
+    Parsing costs ~35 ms, so each file is parsed once, for node id 0, and each copy adds its
+    node id to the defaults canopen marks as relative.
+    """
+    od = copy.deepcopy(_parse_eds(str(eds), eds.stat().st_mtime_ns))
+    if node_id:
+        for variable in _variables(od):
+            if variable.relative and isinstance(variable.default, int):
+                variable.default += node_id
+    return od
+
+
+@functools.lru_cache(maxsize=8)
+def _parse_eds(path: str, mtime_ns: int) -> canopen.ObjectDictionary:
+    return canopen.import_od(path, 0)
+
+
+def _variables(od: canopen.ObjectDictionary) -> Iterator[ODVariable]:
+    for entry in od.values():
+        if isinstance(entry, ODVariable):
+            yield entry
+        else:
+            yield from (v for v in entry.values() if isinstance(v, ODVariable))
+
+
+def _add_node(network: Network, node_id: int, eds: Path, settings: CiA402Settings) -> Node402:
+    node = cast(Node402, canopen.BaseNode402(node_id, load_object_dictionary(eds, node_id)))
+    node.sdo.RESPONSE_TIMEOUT = settings.sdo_timeout_s
+    return network.add_node(node)

@@ -1,0 +1,106 @@
+"""Settings of the CiA 402 driver: one manifest table, checked when it is read."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+from drivers.canopen402.units import JointScale
+from drivers.settings import settings_from_mapping
+
+
+@dataclass(frozen=True, slots=True)
+class CiA402Settings:
+    """One CAN bus with one CiA 402 drive per joint, in joint order.
+
+    ``interface``/``channel`` are python-can's (``socketcan``/``can0`` on a robot PC,
+    ``virtual`` in-process, ``udp_multicast`` with a multicast group across processes).
+    ``counts_per_rev`` has no default on purpose: a guessed scale moves the wrong distance.
+    Empty ``direction``/``offset_counts``/``gear_ratio`` mean +1, 0 and 1.0 for every joint.
+    """
+
+    interface: str
+    channel: str
+    node_ids: tuple[int, ...]
+    counts_per_rev: tuple[float, ...]
+    direction: tuple[int, ...] = ()
+    offset_counts: tuple[int, ...] = ()
+    gear_ratio: tuple[float, ...] = ()
+    name: str = "canopen402"
+    udp_port: int = 43113
+    """Only for ``udp_multicast``: pick one per bus, since Linux delivers a multicast datagram
+    to every socket bound to its port, whatever group that socket joined."""
+    bitrate: int = 1_000_000
+    eds_path: str = ""
+    """The drives' EDS; empty: the generic CSP drive EDS shipped with this driver."""
+    heartbeat_period_ms: int = 50
+    """Written to each drive's 0x1017 (producer heartbeat time)."""
+    heartbeat_timeout_ms: int = 250
+    """Consumer side: a drive silent this long is LINK_LOST."""
+    tpdo_timeout_ms: int = 200
+    """No TPDO from a drive for this long while the bus cycle runs: WATCHDOG."""
+    sdo_timeout_s: float = 0.3
+    boot_timeout_s: float = 2.0
+    """How long connect waits for a drive's first heartbeat after enabling it."""
+    state_timeout_s: float = 1.0
+    """How long a drive may take to follow a 402 state change or a mode switch."""
+    call_timeout_s: float = 10.0
+    """Deadline of each blocking step (bring-up, state changes) on the device thread."""
+    reset_faults_on_connect: bool = False
+    """Clear a drive's latched FAULT at connect; otherwise connect refuses a faulted drive."""
+
+    def __post_init__(self) -> None:
+        _check_node_ids(self.node_ids)
+        joints = len(self.node_ids)
+        for key in ("counts_per_rev", "direction", "offset_counts", "gear_ratio"):
+            values = getattr(self, key)
+            required = key == "counts_per_rev"
+            if len(values) != joints and (required or values):
+                raise ValueError(f"{key} has {len(values)} values for {joints} node ids")
+        if any(c <= 0 for c in self.counts_per_rev):
+            raise ValueError("counts_per_rev must be positive")
+        if any(d not in (-1, 1) for d in self.direction):
+            raise ValueError("direction values must be 1 or -1")
+        if not 0 < self.heartbeat_period_ms < self.heartbeat_timeout_ms:
+            raise ValueError("need 0 < heartbeat_period_ms < heartbeat_timeout_ms")
+        if self.heartbeat_period_ms > 0xFFFF:
+            raise ValueError("heartbeat_period_ms does not fit 0x1017 (UNSIGNED16)")
+        if min(self.tpdo_timeout_ms, self.sdo_timeout_s, self.boot_timeout_s,
+               self.state_timeout_s, self.call_timeout_s) <= 0:
+            raise ValueError("timeouts must be positive")
+
+    @classmethod
+    def from_mapping(cls, table: Mapping[str, Any], where: str = "canopen402") -> CiA402Settings:
+        return settings_from_mapping(cls, table, where)
+
+    def joint_scales(self) -> tuple[JointScale, ...]:
+        joints = len(self.node_ids)
+        direction = self.direction or (1,) * joints
+        offsets = self.offset_counts or (0,) * joints
+        gears = self.gear_ratio or (1.0,) * joints
+        return tuple(
+            JointScale(cpr, d, off, gear)
+            for cpr, d, off, gear in zip(self.counts_per_rev, direction, offsets, gears,
+                                         strict=True)
+        )
+
+    def bus_options(self) -> dict[str, Any]:
+        """Keyword arguments for ``can.Bus`` beyond interface and channel."""
+        options: dict[str, Any] = {"bitrate": self.bitrate}
+        if self.interface == "udp_multicast":
+            options["port"] = self.udp_port
+        return options
+
+    def describe_bus(self) -> str:
+        port = f" port {self.udp_port}" if self.interface == "udp_multicast" else ""
+        return f"interface {self.interface!r} channel {self.channel!r}{port}"
+
+
+def _check_node_ids(node_ids: tuple[int, ...]) -> None:
+    if not node_ids:
+        raise ValueError("node_ids is empty")
+    if any(not 1 <= n <= 127 for n in node_ids):
+        raise ValueError("node ids must be within 1..127")
+    if len(set(node_ids)) != len(node_ids):
+        raise ValueError("node ids must be unique")

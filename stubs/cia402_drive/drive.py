@@ -1,0 +1,311 @@
+"""One emulated CiA 402 servo drive: a canopen ``LocalNode`` plus what LocalNode lacks.
+
+LocalNode brings the SDO server, NMT slave, heartbeat producer and EMCY producer. Added here:
+the 402 state machine behind 0x6040/0x6041, modes of operation (0x6060/0x6061, 0x6502), the
+PDO set the master configured over SDO (rebuilt on each NMT start), RPDO decoding (applied at
+SYNC for synchronous RPDOs), TPDO transmission on SYNC, and drive faults with EMCY.
+
+Position counts are converted with the emulator's own :class:`Encoder`, written independently of
+the driver's units module, so a wrong conversion on either side shows up as wrong motion.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import struct
+import threading
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from canopen import LocalNode, Network
+from canopen.objectdictionary import ODVariable
+from canopen.pdo import PdoMap
+from canopen.sdo import SdoAbortedError
+
+from drivers.canopen402.tables import (
+    SUPPORTED_MODE_BITS,
+    DriveState,
+    Index,
+    Mode,
+    StatusBit,
+)
+from stubs.cia402_drive.state_machine import PowerStateMachine
+
+log = logging.getLogger(__name__)
+
+ABORT_VALUE_RANGE = 0x06090030
+FOLLOWING_ERROR_EMCY = 0x8611
+NO_LIMIT = 0xFFFFFFFF
+
+
+@dataclass(frozen=True, slots=True)
+class Encoder:
+    """How this joint's position sensor counts: the drive's side of the units contract."""
+
+    counts_per_rev: int
+    direction: int = 1
+    offset: int = 0
+
+    def counts(self, q: float) -> int:
+        return round(q * self.direction * self.counts_per_rev / (2 * math.pi)) + self.offset
+
+    def rad(self, counts: int) -> float:
+        return (counts - self.offset) * self.direction * 2 * math.pi / self.counts_per_rev
+
+
+CACHED_PARAMETERS = {
+    Index.TARGET_POSITION: "target_counts",
+    Index.COMM_CYCLE_PERIOD: "cycle_us",
+    Index.FOLLOWING_ERROR_WINDOW: "following_window",
+    Index.RATED_TORQUE: "rated_torque",
+}
+"""Objects the SYNC path reads every cycle, kept as attributes when the master writes them."""
+
+
+class EmulatedDrive:
+    def __init__(self, node: LocalNode, encoder: Encoder, lock: threading.RLock,
+                 q0: float, following_error_rad: float) -> None:
+        self.node = node
+        self.encoder = encoder
+        self.machine = PowerStateMachine()
+        self.mode = Mode.NO_MODE
+        self.mode_locked = False
+        """Injected: the drive accepts 0x6060 writes but never switches mode."""
+        self.heartbeat_stopped = False
+        self.error_code = 0
+        self.error_register = 0
+        self.target_counts = 0
+        self.cycle_us = 0
+        """0x1006 as the master wrote it: the SYNC period the drive expects."""
+        self.actual = (encoder.counts(q0), 0, 0)  # position, velocity (counts), torque (‰)
+        self._lock = lock
+        self._hold_q: float | None = q0
+        self._nmt_state = node.nmt.state
+        self._pending_rpdos: dict[int, PdoMap] = {}
+        self._limits = (0, 0)
+        self.rated_torque = int(node.sdo[Index.RATED_TORQUE].raw)
+        self.following_window = encoder.counts_per_rev * following_error_rad / (2 * math.pi)
+        node.sdo[Index.FOLLOWING_ERROR_WINDOW].raw = round(self.following_window)
+        self._live: dict[int, Callable[[], int]] = {
+            Index.STATUSWORD: self.statusword,
+            Index.MODES_DISPLAY: lambda: int(self.mode),
+            Index.POSITION_ACTUAL: lambda: self.actual[0],
+            Index.VELOCITY_ACTUAL: lambda: self.actual[1],
+            Index.TORQUE_ACTUAL: lambda: self.actual[2],
+            Index.ERROR_CODE: lambda: self.error_code,
+            Index.ERROR_REGISTER: lambda: self.error_register,
+        }
+        """Objects whose value is the drive's live state, not a stored parameter."""
+        self._tpdos: tuple[TpdoPacker, ...] = ()
+        node.add_read_callback(self._on_read)
+        node.add_write_callback(self._on_write)
+        for pdo in node.rpdo.map.values():
+            pdo.add_callback(self._on_rpdo)
+
+    @property
+    def node_id(self) -> int:
+        return self.node.id
+
+    @property
+    def state(self) -> DriveState:
+        return self.machine.state
+
+    @property
+    def operational(self) -> bool:
+        return self.node.nmt.state == "OPERATIONAL"
+
+    # -- object dictionary ---------------------------------------------------------------------
+
+    def statusword(self) -> int:
+        word = self.machine.statusword_bits() | StatusBit.REMOTE
+        if self.machine.enabled and self.mode == Mode.CYCLIC_SYNCHRONOUS_POSITION:
+            word |= StatusBit.FOLLOWS_COMMAND
+        return word
+
+    def _on_read(self, index: int, subindex: int, od: object) -> int | None:
+        live = self._live.get(index)
+        if live is None:
+            return None
+        with self._lock:
+            return live()
+
+    def _on_write(self, index: int, subindex: int, od: object, data: bytes) -> None:
+        value = od.decode_raw(data)  # type: ignore[attr-defined]
+        with self._lock:
+            if index in CACHED_PARAMETERS:
+                setattr(self, CACHED_PARAMETERS[index], value)
+            elif index == Index.CONTROLWORD:
+                self._on_controlword(value)
+            elif index == Index.MODES_OF_OPERATION:
+                self._on_mode(value)
+            elif index == Index.QUICK_STOP_OPTION:
+                self.machine.quick_stop_option = value
+            elif index == Index.SOFTWARE_LIMITS:
+                low, high = self._limits
+                self._limits = (value, high) if subindex == 1 else (low, value)
+            elif index == Index.HEARTBEAT_TIME and self.heartbeat_stopped:
+                self.node.nmt.stop_heartbeat()  # LocalNode just restarted it; stay silent
+
+    def _on_controlword(self, controlword: int) -> None:
+        was_enabled = self.machine.enabled
+        if self.machine.on_controlword(controlword):
+            self.error_code = self.error_register = 0
+            self.node.emcy.reset()  # EMCY 0x0000: the fault is gone
+        if was_enabled and not self.machine.enabled:
+            self._hold_q = None  # brake where the joint is now
+
+    def _on_mode(self, mode: int) -> None:
+        if mode not in {Mode.NO_MODE, *SUPPORTED_MODE_BITS}:
+            raise SdoAbortedError(ABORT_VALUE_RANGE)  # as a drive does for a mode it lacks
+        if not self.mode_locked:
+            self.mode = Mode(mode)
+
+    # -- faults --------------------------------------------------------------------------------
+
+    def fault(self, code: int, register: int = 0x01) -> None:
+        """A drive fault: FAULT, error code and register latched, EMCY sent."""
+        with self._lock:
+            self.machine.fault()
+            self._hold_q = None
+            self.error_code = code
+            self.error_register = register | 0x01  # bit 0: generic error
+            self.node.emcy.send(code, self.error_register)
+
+    def stop_heartbeat(self) -> None:
+        self.heartbeat_stopped = True
+        self.node.nmt.stop_heartbeat()
+
+    def restart_heartbeat(self) -> None:
+        self.heartbeat_stopped = False
+        self.node.nmt.start_heartbeat(self.node.sdo[Index.HEARTBEAT_TIME].raw)
+
+    # -- PDOs ----------------------------------------------------------------------------------
+
+    def on_nmt(self) -> None:
+        """After an NMT command: entering OPERATIONAL activates the PDO set written over SDO."""
+        state = self.node.nmt.state
+        entering = state == "OPERATIONAL" and self._nmt_state != "OPERATIONAL"
+        self._nmt_state = state
+        if entering:
+            self._rebuild_pdos()
+
+    def _rebuild_pdos(self) -> None:
+        network = self.node.network
+        for pdo in [*self.node.rpdo.map.values(), *self.node.tpdo.map.values()]:
+            if pdo.cob_id is not None:
+                _unsubscribe(network, pdo)
+        self.node.rpdo.read()
+        self.node.tpdo.read()
+        for pdo in self.node.tpdo.map.values():
+            _unsubscribe(network, pdo)  # our own TPDOs come back on an echoing bus
+        self._tpdos = tuple(
+            TpdoPacker.from_map(pdo) for pdo in self.node.tpdo.map.values()
+            if pdo.enabled and pdo.trans_type is not None and pdo.trans_type <= 240
+        )  # event-driven TPDOs (254/255) are not produced by this emulator
+        self._pending_rpdos.clear()
+
+    def _on_rpdo(self, pdo: PdoMap) -> None:
+        if not self.operational:
+            return
+        if pdo.trans_type is not None and pdo.trans_type <= 240:
+            with self._lock:
+                self._pending_rpdos[pdo.cob_id or 0] = pdo  # the last one before SYNC wins
+        else:
+            self._apply_rpdo(pdo)
+
+    def _apply_rpdo(self, pdo: PdoMap) -> None:
+        for var in pdo:
+            if not var.length:
+                continue
+            try:
+                self.node.set_data(var.index, var.subindex, var.get_data())
+            except SdoAbortedError as error:
+                log.warning("node %d: RPDO value for 0x%04X refused: %s", self.node_id,
+                            var.index, error)
+
+    def apply_pending_rpdos(self) -> None:
+        pending, self._pending_rpdos = list(self._pending_rpdos.values()), {}
+        for pdo in pending:
+            self._apply_rpdo(pdo)
+
+    def transmit_tpdos(self, sync_count: int) -> None:
+        for packer in self._tpdos:
+            if sync_count % packer.every == 0:
+                self.node.network.send_message(packer.cob_id, packer.pack(self._value))
+
+    def _value(self, od: ODVariable) -> int:
+        live = self._live.get(od.index)
+        if live is not None:
+            return live()
+        return od.decode_raw(self.node.get_data(od.index, od.subindex))
+
+    # -- motion (called at SYNC, under the emulator lock) ---------------------------------------
+
+    def joint_target(self, q_now: float) -> float:
+        """Where the plant should take this joint: the CSP target, or a held position."""
+        if self.machine.enabled and self.mode == Mode.CYCLIC_SYNCHRONOUS_POSITION:
+            self._hold_q = None
+            return self.encoder.rad(self._limited(self.target_counts))
+        if self._hold_q is None:
+            self._hold_q = q_now  # brake (or quick-stop) position: where it was when it stopped
+        return self._hold_q
+
+    def _limited(self, counts: int) -> int:
+        low, high = self._limits
+        return min(max(counts, low), high) if low < high else counts
+
+    def update_actual(self, q: float, qd: float, effort: float) -> None:
+        position = self.encoder.counts(q)
+        velocity = round(qd * self.encoder.direction * self.encoder.counts_per_rev / (2 * math.pi))
+        torque = round(1e6 * effort * self.encoder.direction / max(self.rated_torque, 1))
+        self.actual = (position, velocity, max(-32768, min(32767, torque)))
+        self._check_following_error(position)
+        if abs(qd) < 1e-3:
+            self.machine.after_standstill()
+
+    def _check_following_error(self, position: int) -> None:
+        if not (self.machine.enabled and self.mode == Mode.CYCLIC_SYNCHRONOUS_POSITION):
+            return
+        if self.following_window >= NO_LIMIT:
+            return
+        if abs(self._limited(self.target_counts) - position) > self.following_window:
+            self.fault(FOLLOWING_ERROR_EMCY, 0x20)  # error register bit 5: device profile
+
+
+@dataclass(frozen=True, slots=True)
+class TpdoPacker:
+    """One TPDO's layout, compiled once per NMT start: SYNC then only packs numbers.
+
+    (Going through ``LocalNode.get_data`` and ``PdoVariable.set_data`` per object cost most of
+    a SYNC's time with six drives.)
+    """
+
+    cob_id: int
+    every: int
+    size: int
+    fields: tuple[tuple[ODVariable, struct.Struct, int], ...]
+    """(object, encoding, byte offset) per mapped object."""
+
+    @classmethod
+    def from_map(cls, pdo: PdoMap) -> TpdoPacker:
+        fields = []
+        for var in pdo:
+            if not var.length:
+                continue
+            if var.offset % 8 or var.length % 8:
+                raise ValueError(f"TPDO 0x{pdo.cob_id:X}: only byte-aligned objects are emulated")
+            fields.append((var.od, var.od.STRUCT_TYPES[var.od.data_type], var.offset // 8))
+        size = sum(f[1].size for f in fields)
+        return cls(int(pdo.cob_id or 0), max(1, int(pdo.trans_type or 1)), size, tuple(fields))
+
+    def pack(self, value: Callable[[ODVariable], int]) -> bytearray:
+        data = bytearray(self.size)
+        for od, encoding, offset in self.fields:
+            encoding.pack_into(data, offset, value(od))
+        return data
+
+
+def _unsubscribe(network: Network, pdo: PdoMap) -> None:
+    if pdo.cob_id is not None and pdo.on_message in network.subscribers.get(pdo.cob_id, []):
+        network.unsubscribe(pdo.cob_id, pdo.on_message)

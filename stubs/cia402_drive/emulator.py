@@ -1,0 +1,223 @@
+"""A bus of emulated CiA 402 drives, one per joint, all moving one plant.
+
+On every SYNC the emulator applies the RPDOs received since the last one, commands the plant
+(each enabled CSP drive's target; everything else held where it stopped), steps the plant by the
+wall time since the previous SYNC (capped, so a pause in SYNC is not a jump), and answers with
+the TPDOs. Frames are handled on canopen's notifier thread; one lock orders them against fault
+injection. In-process on ``virtual``; across processes on ``udp_multicast`` (``__main__``).
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import can
+import canopen
+
+from drivers.canopen402.link import load_object_dictionary, widen_receive_buffer
+from drivers.canopen402.tables import DEFAULT_EDS
+from stubs.cia402_drive.drive import EmulatedDrive, Encoder
+from stubs.plant.base import KinematicPlant, Plant
+
+log = logging.getLogger(__name__)
+
+SYNC_COB_ID = 0x80
+NMT_COB_ID = 0x00
+MAX_SYNC_GAP_PERIODS = 4
+"""A SYNC after a longer pause advances the plant by at most this many cycle periods."""
+DEFAULT_CYCLE_US = 2000
+DEFAULT_EMCY_CODE = 0x2310
+
+
+@dataclass(frozen=True, slots=True)
+class EmulatorConfig:
+    interface: str
+    channel: str
+    node_ids: tuple[int, ...]
+    encoders: tuple[Encoder, ...]
+    udp_port: int = 43113
+    eds_path: Path = DEFAULT_EDS
+    following_error_rad: float = 0.25
+    plant_timestep_ns: int = 1_000_000
+    q0: tuple[float, ...] | None = None
+    """Initial joint positions; None: the plant's own default pose."""
+
+    def __post_init__(self) -> None:
+        if len(self.encoders) != len(self.node_ids):
+            raise ValueError(f"{len(self.encoders)} encoders for {len(self.node_ids)} nodes")
+
+
+@dataclass(slots=True)
+class _SyncClock:
+    last: float | None = None
+    debt_ns: int = 0
+    count: int = 0
+
+
+class DriveEmulator:
+    def __init__(self, config: EmulatorConfig, plant: Plant | None = None) -> None:
+        self.config = config
+        self.plant: Plant = plant or KinematicPlant(dof=len(config.node_ids),
+                                                    timestep_ns=config.plant_timestep_ns)
+        if self.plant.dof != len(config.node_ids):
+            raise ValueError(f"the plant has {self.plant.dof} joints, --nodes lists "
+                             f"{len(config.node_ids)} drives")
+        if config.q0 is not None:
+            self.plant.reset(config.q0)
+        self.lock = threading.RLock()
+        self.drives: dict[int, EmulatedDrive] = {}
+        self._network: canopen.Network | None = None
+        self._clock = _SyncClock()
+        self.faults: dict[str, Callable[..., None]] = {
+            "emcy": self._fault_emcy,
+            "heartbeat_stop": self._fault_heartbeat_stop,
+            "quick_stop": self._fault_quick_stop,
+            "ignore_mode": self._fault_ignore_mode,
+            "clear": self._fault_clear,
+        }
+
+    # -- lifetime ------------------------------------------------------------------------------
+
+    def start(self) -> DriveEmulator:
+        bus = can.Bus(interface=self.config.interface, channel=self.config.channel,
+                      **self._bus_options())
+        try:
+            widen_receive_buffer(bus)
+            network = canopen.Network(bus)
+            network.NOTIFIER_CYCLE = 0.05  # bounds how long stop() waits for the reader thread
+            self._add_drives(network)
+            network.subscribe(SYNC_COB_ID, self._on_sync)
+            network.subscribe(NMT_COB_ID, self._on_nmt)
+            self._network = network.connect()
+        except BaseException:
+            bus.shutdown()
+            raise
+        for drive in self.drives.values():
+            drive.node.nmt.state = "RESET"  # sends the boot-up message
+            drive.node.nmt.state = "PRE-OPERATIONAL"
+        return self
+
+    def _add_drives(self, network: canopen.Network) -> None:
+        q_now = self.plant.state().q
+        for joint, (node_id, encoder) in enumerate(
+            zip(self.config.node_ids, self.config.encoders, strict=True)
+        ):
+            node = network.create_node(
+                node_id, load_object_dictionary(self.config.eds_path, node_id))
+            self.drives[node_id] = EmulatedDrive(node, encoder, self.lock, q_now[joint],
+                                                 self.config.following_error_rad)
+
+    def stop(self) -> None:
+        network, self._network = self._network, None
+        if network is None:
+            return
+        for drive in self.drives.values():
+            drive.node.nmt.stop_heartbeat()
+        network.disconnect()
+
+    def __enter__(self) -> DriveEmulator:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    def _bus_options(self) -> dict[str, Any]:
+        if self.config.interface == "udp_multicast":
+            return {"port": self.config.udp_port}
+        return {}
+
+    # -- frames --------------------------------------------------------------------------------
+
+    def _on_nmt(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        # Runs after each LocalNode's own NMT handler (subscribed earlier), so states are new.
+        with self.lock:
+            for drive in self.drives.values():
+                drive.on_nmt()
+
+    def _on_sync(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        with self.lock:
+            operational = [d for d in self.drives.values() if d.operational]
+            for drive in operational:
+                drive.apply_pending_rpdos()
+            self._move_plant()
+            self._clock.count += 1
+            for drive in operational:
+                drive.transmit_tpdos(self._clock.count)
+
+    def _move_plant(self) -> None:
+        drives = list(self.drives.values())
+        q_now = self.plant.state().q
+        self.plant.command_position([d.joint_target(q) for d, q in zip(drives, q_now,
+                                                                        strict=True)])
+        steps = self._steps_due()
+        if steps:
+            self.plant.step(steps)
+        state = self.plant.state()
+        for drive, q, qd, effort in zip(drives, state.q, state.qd, state.effort, strict=True):
+            drive.update_actual(q, qd, effort)
+
+    def _steps_due(self) -> int:
+        """Plant steps for the wall time since the previous SYNC, capped at a few cycles."""
+        now = time.monotonic()
+        cycle_ns = self._cycle_ns()
+        elapsed_ns = cycle_ns if self._clock.last is None else int(1e9 * (now - self._clock.last))
+        self._clock.last = now
+        self._clock.debt_ns += min(elapsed_ns, MAX_SYNC_GAP_PERIODS * cycle_ns)
+        steps, self._clock.debt_ns = divmod(self._clock.debt_ns, self.plant.timestep_ns)
+        return steps
+
+    def _cycle_ns(self) -> int:
+        first = next(iter(self.drives.values()))
+        return (first.cycle_us or DEFAULT_CYCLE_US) * 1000
+
+    # -- fault injection -----------------------------------------------------------------------
+
+    def inject(self, fault: str, **fields: Any) -> None:
+        """Switch a named fault on: emcy, heartbeat_stop, quick_stop, ignore_mode, clear."""
+        if fault not in self.faults:
+            raise KeyError(f"unknown fault {fault!r}; known: {', '.join(self.faults)}")
+        with self.lock:
+            self.faults[fault](**fields)
+
+    def drive(self, node: int | None) -> EmulatedDrive:
+        if node is None:
+            return next(iter(self.drives.values()))
+        if node not in self.drives:
+            raise KeyError(f"no drive with node id {node}")
+        return self.drives[node]
+
+    def _fault_emcy(self, node: int | None = None, code: int = DEFAULT_EMCY_CODE,
+                    register: int = 0x02) -> None:
+        self.drive(node).fault(int(code), int(register))  # register bit 1: current
+
+    def _fault_heartbeat_stop(self, node: int | None = None) -> None:
+        self.drive(node).stop_heartbeat()
+
+    def _fault_quick_stop(self, node: int | None = None) -> None:
+        self.drive(node).machine.quick_stop_input()
+
+    def _fault_ignore_mode(self, node: int | None = None) -> None:
+        self.drive(node).mode_locked = True
+
+    def _fault_clear(self) -> None:
+        """Remove injected conditions; a latched FAULT stays until the master resets it."""
+        for drive in self.drives.values():
+            drive.mode_locked = False
+            drive.machine.quick_stop_input(active=False)
+            if drive.heartbeat_stopped:
+                drive.restart_heartbeat()
+
+
+def encoders_for(node_ids: Sequence[int], counts_per_rev: int,
+                 directions: Sequence[int] = (), offsets: Sequence[int] = ()) -> tuple[
+                     Encoder, ...]:
+    directions = directions or [1] * len(node_ids)
+    offsets = offsets or [0] * len(node_ids)
+    return tuple(Encoder(counts_per_rev, d, o) for d, o in zip(directions, offsets, strict=True))
+
