@@ -154,6 +154,10 @@ class _Malformed(Exception):
     pass
 
 
+# What numpy and msgspec may raise on hostile input that slipped past the explicit checks.
+_UNTRUSTED_INPUT_ERRORS = (ValueError, TypeError, OverflowError, SyntaxError)
+
+
 # ---------------------------------------------------------------------------------------------
 # Payload hash
 # ---------------------------------------------------------------------------------------------
@@ -202,6 +206,8 @@ def decode_event_chunk(event: Mapping[str, Any], client_receive: int) -> Chunk |
         return _decode_mapping(event, client_receive)
     except _Malformed as error:
         return MalformedChunk(chunk_id, str(error))
+    except _UNTRUSTED_INPUT_ERRORS as error:  # untrusted input never escapes as an exception
+        return MalformedChunk(chunk_id, f"undecodable: {type(error).__name__}")
 
 
 def _decode_mapping(event: Mapping[str, Any], client_receive: int) -> Chunk:
@@ -238,7 +244,7 @@ def _build(
         times=times,
         replacement_policy=policy,
         fallback_id=_optional_text(event, "fallback_id"),
-        phase_markers=_markers(event.get("phase_markers", ())),
+        phase_markers=_markers(event.get("phase_markers") or ()),
         action_units=_optional_text(event, "action_units"),
         action_frame=_optional_text(event, "action_frame"),
         fingerprint_q=_fingerprint(event.get("state_fingerprint"), nonfinite),
@@ -276,14 +282,23 @@ def _optional_text(event: Mapping[str, Any], name: str) -> str | None:
     return value
 
 
+_INT64 = 2**63
+MAX_TIME_MS = 1e13
+"""Largest magnitude of a time in milliseconds (about 300 years): anything beyond is nonsense,
+and would not fit the 64-bit integers of the wire."""
+
+
 def _integer(event: Mapping[str, Any], name: str) -> int:
     if name not in event:
         raise _Malformed(f"missing required field {name!r}")
     value = event[name]
     if isinstance(value, bool) or not isinstance(value, int):
         if isinstance(value, float) and math.isfinite(value) and value.is_integer():
-            return int(value)
-        raise _Malformed(f"field {name!r} must be an integer")
+            value = int(value)
+        else:
+            raise _Malformed(f"field {name!r} must be an integer")
+    if not -_INT64 <= value < _INT64:
+        raise _Malformed(f"field {name!r} is out of range")
     return value
 
 
@@ -293,9 +308,11 @@ def _milliseconds(event: Mapping[str, Any], name: str, nonfinite: list[str]) -> 
         return None
     if isinstance(value, bool) or not isinstance(value, int | float):
         raise _Malformed(f"field {name!r} must be a number of milliseconds")
-    if not math.isfinite(value):
+    if isinstance(value, float) and not math.isfinite(value):
         nonfinite.append(name)
         return None
+    if abs(value) > MAX_TIME_MS:
+        raise _Malformed(f"field {name!r} is out of range")
     return ms_to_ns(value)
 
 
@@ -343,7 +360,11 @@ def _actions_from_lists(value: Any, nonfinite: list[str]) -> np.ndarray:
             raise _Malformed("field 'actions' must be a rectangular H x D list of numbers")
         if not all(_is_number(v) for v in row):
             raise _Malformed("field 'actions' holds a value that is not a number")
-    return _freeze(np.array(value, dtype=np.float64), nonfinite)
+    try:
+        array = np.array(value, dtype=np.float64)
+    except OverflowError:
+        raise _Malformed("field 'actions' holds a number too large for a float") from None
+    return _freeze(array, nonfinite)
 
 
 def _freeze(actions: np.ndarray, nonfinite: list[str]) -> np.ndarray:
@@ -383,6 +404,8 @@ def decode_wire_chunk(frame: bytes, client_receive: int) -> Chunk | MalformedChu
         return from_wire(wire, client_receive)
     except _Malformed as error:
         return MalformedChunk(wire.chunk_id, str(error))
+    except _UNTRUSTED_INPUT_ERRORS as error:
+        return MalformedChunk(wire.chunk_id, f"undecodable: {type(error).__name__}")
 
 
 def from_wire(wire: WireChunk, client_receive: int) -> Chunk:
@@ -394,6 +417,7 @@ def from_wire(wire: WireChunk, client_receive: int) -> Chunk:
     fields["calibration_epoch"] = str(wire.calibration_epoch)
     if any(fields[name] == "" for name in ("chunk_id", *_REQUIRED_TEXT)):
         raise _Malformed("an identity field is empty")
+    _markers(list(wire.phase_markers))
     times = {name: getattr(wire, name) for name in (*TIME_FIELDS, *DURATION_FIELDS)}
     fingerprint = wire.state_fingerprint.q if wire.state_fingerprint else None
     if fingerprint is not None and not all(math.isfinite(v) for v in fingerprint):
@@ -414,7 +438,7 @@ def from_wire(wire: WireChunk, client_receive: int) -> Chunk:
 def _array_from_payload(payload: ArrayPayload) -> np.ndarray:
     try:
         dtype = np.dtype(payload.dtype)
-    except TypeError:
+    except (TypeError, ValueError, SyntaxError):  # numpy parses dtype text with its own parser
         raise _Malformed(f"actions have unknown dtype {payload.dtype!r}") from None
     if dtype.kind != "f" or len(payload.shape) != 2 or min(payload.shape, default=0) <= 0:
         raise _Malformed("actions must be a non-empty 2-D float array")

@@ -183,9 +183,16 @@ def divergence(chunk: Chunk, ctx: AdmissionContext, first_due: int | None) -> fl
     return float(diff.max()) if diff.size else 0.0
 
 
-def divergence_reasons(chunk: Chunk, ctx: AdmissionContext, first_due: int | None) -> list[R]:
+def divergence_verdict(
+    chunk: Chunk, ctx: AdmissionContext, first_due: int | None
+) -> tuple[float | None, list[R]]:
+    """The measured divergence (None when a non-finite or mis-sized chunk has none) and the
+    reason it raises, if any."""
     if chunk.nonfinite or chunk.actions.shape[1] != ctx.action_dim:
-        return []
-    if divergence(chunk, ctx, first_due) > ctx.policy.max_divergence:
-        return [R.STATE_DIVERGED]
-    return []
+        return None, []
+    drift = divergence(chunk, ctx, first_due)
+    return drift, ([R.STATE_DIVERGED] if drift > ctx.policy.max_divergence else [])
+
+
+def divergence_reasons(chunk: Chunk, ctx: AdmissionContext, first_due: int | None) -> list[R]:
+    return divergence_verdict(chunk, ctx, first_due)[1]

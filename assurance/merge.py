@@ -98,15 +98,19 @@ def _blend(
 def _reference(
     queue: ActionQueue, first_due: int, dt: int, hold_q: np.ndarray, cut_at: int | None
 ) -> Reference:
-    """The setpoint the first new row follows: the queued row before it, if contiguous."""
+    """The setpoint the first new row follows.
+
+    The queued row before it, moving, if the two are contiguous. After a gap the queue runs dry
+    first and the robot comes to rest where that row left it, so the reference is that row at
+    rest. With nothing queued before it, it is the current hold (or the measured state).
+    """
     before = queue.predecessor(first_due if cut_at is None else min(first_due, cut_at))
-    if before is not None:
-        seg = before.segment
-        contiguous = before.due + seg.dt >= first_due and before.due >= first_due - 2 * dt
-        if contiguous:
-            step = before.segment.step_into(before.row) * (dt / seg.dt)
-            return Reference(before.q, step)
-    return Reference(hold_q, np.zeros_like(hold_q))
+    if before is None:
+        return Reference(hold_q, np.zeros_like(hold_q))
+    seg = before.segment
+    if before.due + seg.dt >= first_due and before.due >= first_due - 2 * dt:
+        return Reference(before.q, before.segment.step_into(before.row) * (dt / seg.dt))
+    return Reference(before.q, np.zeros_like(before.q))
 
 
 def _rows_from(queue: ActionQueue, t: int) -> int:

@@ -44,7 +44,7 @@ class Watermarks:
         if not self._round_trips:
             return None
         ordered = sorted(self._round_trips)
-        return ordered[min(len(ordered) - 1, (95 * len(ordered)) // 100)]
+        return ordered[max(0, -(-95 * len(ordered) // 100) - 1)]  # nearest rank
 
     @property
     def low_ns(self) -> int:

@@ -69,14 +69,20 @@ class TaskMachine:
         self, target: TaskPhase, evidence: Mapping[str, object], by: Requester,
         fsm_has_authority: bool = True,
     ) -> TaskDecision:
-        """Decide a requested transition; the phase changes only if it is accepted."""
-        if target is P.SAFE_HOLD and self.phase is not P.SAFE_HOLD:
+        """Decide a requested transition; the phase changes only if it is accepted.
+
+        Anyone may ask for SAFE_HOLD from a phase that is not already suspended; only the
+        operator acts on a suspended task (a takeover ends by the operator's release, an
+        aborted task stays aborted).
+        """
+        if target is P.SAFE_HOLD and self.phase not in SUSPENDED:
             return self._move(P.SAFE_HOLD, ReasonCode.HOLD_REQUESTED)
         reasons: list[ReasonCode] = []
         missing = self._missing(target, evidence)
         legal = target in EDGES[self.phase]
         fsm_outranked = not fsm_has_authority and target not in SUSPENDED
-        if by is Requester.POLICY or fsm_outranked:
+        human_owns = self.phase is P.HUMAN_RECOVERY and by is not Requester.OPERATOR
+        if by is Requester.POLICY or fsm_outranked or human_owns:
             reasons.append(ReasonCode.NO_AUTHORITY)
         if missing or not legal:
             reasons.append(ReasonCode.GUARD_FAILED)

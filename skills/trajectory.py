@@ -4,13 +4,13 @@ Three uses, one set of limits (:class:`MotionLimits`, per joint velocity, accele
 position):
 
 - :class:`SetpointInterpolator` turns a stream of action setpoints (a new target every action
-  period, e.g. 20 ms) into one jerk-limited setpoint per control period (2 ms). Each new target
-  is planned to be reached one stream interval after it arrives, at the stream's own velocity,
-  so a steadily moving stream is followed smoothly instead of stop-and-go.
+  period, e.g. 20 ms) into one jerk-limited setpoint per control period (2 ms). Each joint
+  passes through each new target at the stream's own velocity, so a steadily moving stream is
+  followed smoothly instead of stop-and-go.
 - :func:`decelerate_to_hold` brings a moving joint vector to rest as fast as the limits allow
   (the queue ran dry, or a hold was ordered).
-- :func:`plan_joint_move` is a rest-to-rest move on a straight line in joint space, for
-  classical transport and retreat.
+- :func:`plan_joint_move` is a time-optimal rest-to-rest move on a straight line in joint
+  space, for classical transport and retreat.
 
 ruckig 0.19 (community build) ignores ``min/max_position``, so position limits are enforced
 here: targets must be inside them, pass-through velocities are zeroed where the joint could not
@@ -29,6 +29,7 @@ from ruckig import (
     ControlInterface,
     InputParameter,
     OutputParameter,
+    Profile,
     Result,
     Ruckig,
     RuckigError,
@@ -40,6 +41,7 @@ from assurance.limits import JointLimits
 
 _NS = 1e-9
 _OK_RESULTS = (Result.Working, Result.Finished)
+_STILL = 1e-9
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -76,14 +78,6 @@ class MotionLimits:
     def dof(self) -> int:
         return int(self.lower.shape[0])
 
-    @property
-    def lower_list(self) -> list[float]:
-        return self.lower.tolist()
-
-    @property
-    def upper_list(self) -> list[float]:
-        return self.upper.tolist()
-
     @classmethod
     def uniform(cls, dof: int, position: float, velocity: float, acceleration: float,
                 jerk: float) -> MotionLimits:
@@ -113,13 +107,23 @@ class JointSample:
 
 
 class JointTrajectory:
-    """A planned ruckig trajectory: sample it at any time, ask its duration and extent."""
+    """A planned trajectory: sample it at any time, ask its duration and extent.
 
-    def __init__(self, trajectory: Trajectory) -> None:
+    Either a ruckig trajectory over the joints, or (for straight-line moves) a one-dimensional
+    ruckig trajectory of a path parameter ``s`` with ``q = origin + s·direction``.
+    """
+
+    def __init__(self, trajectory: Trajectory, origin: np.ndarray | None = None,
+                 direction: np.ndarray | None = None) -> None:
         self._trajectory = trajectory
+        self._origin, self._direction = origin, direction
         extrema = trajectory.position_extrema
-        self.position_min = np.array([bound.min for bound in extrema])
-        self.position_max = np.array([bound.max for bound in extrema])
+        low = np.array([bound.min for bound in extrema])
+        high = np.array([bound.max for bound in extrema])
+        if direction is not None:
+            ends = (origin + low[0] * direction, origin + high[0] * direction)
+            low, high = np.minimum(*ends), np.maximum(*ends)
+        self.position_min, self.position_max = low, high
 
     @property
     def duration(self) -> float:
@@ -136,28 +140,50 @@ class JointTrajectory:
             raise ValueError(f"cannot sample a trajectory at t={t}")
         position, velocity, acceleration = self._trajectory.at_time(
             min(max(float(t), 0.0), self.duration))
-        return JointSample(np.array(position), np.array(velocity), np.array(acceleration))
+        if self._direction is None:
+            return JointSample(np.array(position), np.array(velocity), np.array(acceleration))
+        line = self._direction
+        return JointSample(self._origin + position[0] * line, velocity[0] * line,
+                           acceleration[0] * line)
 
     def within(self, limits: MotionLimits, tolerance: float = 1e-9) -> bool:
         """True when every joint stays inside its position limits for the whole trajectory."""
-        return _extrema_within(self._trajectory, limits, tolerance)
+        return bool(np.all(self.position_min >= limits.lower - tolerance)
+                    and np.all(self.position_max <= limits.upper + tolerance))
 
 
 def plan_joint_move(q0: np.ndarray, q1: np.ndarray, limits: MotionLimits) -> JointTrajectory:
     """Time-optimal rest-to-rest move from ``q0`` to ``q1`` on a straight joint-space line.
+
+    Planned as one path parameter ``s`` from 0 to 1 whose velocity, acceleration and jerk
+    limits are the tightest joint limit divided by that joint's share of the move: every joint
+    is then the same fraction of the way at every instant (ruckig's own phase
+    synchronisation falls back to time synchronisation when the joints' limits differ).
 
     Raises:
         ValueError: a vector has the wrong length, is not finite, or lies outside the limits.
     """
     start = _checked_position(q0, limits, "move start")
     goal = _checked_position(q1, limits, "move goal")
-    inp = _input(limits, start)
-    inp.target_position = goal
-    inp.synchronization = Synchronization.Phase
-    trajectory = _calculate(inp, limits.dof, "joint move")
-    if not trajectory.within(limits):
-        raise ValueError("planned joint move leaves the position limits")
-    return trajectory
+    direction = goal - start
+    # Joints moving less than a nanoradian do not constrain the timing: their share of the
+    # move would turn into path limits too large for ruckig's arithmetic.
+    moving = np.abs(direction) > _STILL
+    inp = InputParameter(1)
+    inp.current_position = inp.current_velocity = inp.current_acceleration = [0.0]
+    inp.target_velocity = inp.target_acceleration = [0.0]
+    if moving.any():
+        share = np.abs(direction[moving])
+        inp.target_position = [1.0]
+        inp.max_velocity = [float(np.min(limits.velocity[moving] / share))]
+        inp.max_acceleration = [float(np.min(limits.acceleration[moving] / share))]
+        inp.max_jerk = [float(np.min(limits.jerk[moving] / share))]
+    else:  # already there: a zero-length plan
+        inp.target_position = [0.0]
+        inp.max_velocity = inp.max_acceleration = inp.max_jerk = [1.0]
+    trajectory = Trajectory(1)
+    _calculate_into(inp, trajectory, "joint move")
+    return JointTrajectory(trajectory, start, direction)
 
 
 def decelerate_to_hold(
@@ -207,10 +233,16 @@ class SetpointInterpolator:
 
     Call :meth:`update` once per control tick with the current action target (the same target
     again until the next action arrives). A target that differs from the previous one is a new
-    stream sample: it is planned to be reached one stream interval later (the time since the
-    previous sample) at the stream's velocity. When the stream stops (no new target for longer
-    than its interval) the pass-through velocity is dropped and the setpoints settle at the last
-    target. Each call advances exactly one control period.
+    stream sample; each joint heads for it on its own time-optimal profile and passes through
+    it at the stream's velocity (estimated from the last two samples), then keeps that velocity
+    until the next sample. When the stream stops (no new sample for longer than its interval),
+    each joint that has reached the last target drops the pass-through velocity and settles
+    back on it, overshooting by at most its braking distance from the stream's velocity. Each
+    call advances exactly one control period.
+
+    The pass-through velocity is withheld (zero) for a joint when it would carry the joint
+    past a position limit, or when the joint could only reach it by first moving away from
+    the target (a "run-up"); both are checked on every plan.
     """
 
     def __init__(self, limits: MotionLimits, q0: np.ndarray,
@@ -218,9 +250,9 @@ class SetpointInterpolator:
         self.limits = limits
         self.config = config or InterpolatorConfig()
         self._otg = Ruckig(limits.dof, self.config.control_period_ns * _NS)
+        self._out = OutputParameter(limits.dof)
         self._half_inverse_acceleration = 0.5 / limits.acceleration
         self._acceleration_over_jerk = limits.acceleration / limits.jerk
-        self._out = OutputParameter(limits.dof)
         self.reset(q0)
 
     def reset(self, q: np.ndarray, qd: np.ndarray | None = None) -> None:
@@ -229,10 +261,16 @@ class SetpointInterpolator:
         velocity = None if qd is None else _checked_vector(qd, self.limits.dof, "start velocity")
         self._inp = _input(self.limits, position, velocity)
         self._inp.target_position = position
+        # Each joint on its own time-optimal profile: synchronising joints that must arrive
+        # with different non-zero velocities lands ruckig in "blocked" duration intervals,
+        # where the common duration it finds makes joints reverse on the way.
+        self._inp.synchronization = Synchronization.No
         self._target = position
+        self._target_velocity = np.zeros(self.limits.dof)
         self._target_t_ns: int | None = None
         self._stream_interval_ns: int | None = None
         self._last_t_ns: int | None = None
+        self._arrived = np.full(self.limits.dof, qd is None)
         zeros = np.zeros(self.limits.dof)
         self._setpoint = Setpoint(0, position, zeros if velocity is None else velocity, zeros)
         self._otg.reset()
@@ -256,7 +294,7 @@ class SetpointInterpolator:
         if goal.tobytes() != self._target.tobytes():  # exact change, cheaper than array_equal
             self._new_stream_sample(goal, now_ns)
         elif self._stream_is_stale(now_ns):
-            self._end_stream()
+            self._settle(self._arrived)
         self._advance()
         return self._setpoint
 
@@ -266,21 +304,29 @@ class SetpointInterpolator:
             interval = None
         velocity = np.zeros(self.limits.dof)
         if interval is not None and self.config.velocity_feedforward:
-            velocity = self._brakeable((goal - self._target) / (interval * _NS), goal)
+            velocity = (goal - self._target) / (interval * _NS)
+            velocity = self._reachable(self._brakeable(velocity, goal), goal)
         self._target, self._target_t_ns, self._stream_interval_ns = goal, now_ns, interval
         self._inp.target_position = goal
-        self._inp.target_velocity = velocity
-        self._inp.minimum_duration = None if interval is None else interval * _NS
+        self._set_target_velocity(velocity)
 
     def _stream_is_stale(self, now_ns: int) -> bool:
         if self._stream_interval_ns is None:
             return False
         return now_ns - self._target_t_ns > self._stream_interval_ns + self.config.control_period_ns
 
-    def _end_stream(self) -> None:
-        self._stream_interval_ns = None
-        self._inp.target_velocity = np.zeros(self.limits.dof)
-        self._inp.minimum_duration = None
+    def _settle(self, joints: np.ndarray) -> None:
+        """Drop the pass-through velocity of ``joints`` (a boolean mask)."""
+        if joints.any() and np.any(self._target_velocity[joints] != 0.0):
+            velocity = self._target_velocity.copy()
+            velocity[joints] = 0.0
+            self._set_target_velocity(velocity)
+        if np.all(self._target_velocity == 0.0):
+            self._stream_interval_ns = None
+
+    def _set_target_velocity(self, velocity: np.ndarray) -> None:
+        self._target_velocity = velocity
+        self._inp.target_velocity = velocity
 
     def _brakeable(self, velocity: np.ndarray, at: np.ndarray) -> np.ndarray:
         """Stream velocity, clipped to the limit and zeroed where it could not stop in time."""
@@ -294,15 +340,37 @@ class SetpointInterpolator:
         velocity[stop > room] = 0.0
         return velocity
 
+    def _reachable(self, velocity: np.ndarray, goal: np.ndarray) -> np.ndarray:
+        """Cap each pass-through speed at what the joint can reach on its way to ``goal``.
+
+        Speeding up from ``v0`` to ``v1`` at acceleration ``a`` and jerk ``j`` takes at most
+        ``(v0 + v1)/2 · ((v1 - v0)/a + a/j)`` of distance, so distance ``d`` allows at least
+        ``v1² + k·v1 = v0² − k·v0 + 2·a·d`` with ``k = a²/j``. Keeping the current speed is
+        always allowed (the bound is loose for small speed-ups). The estimate ignores the
+        current acceleration; :meth:`_runs_up` catches what it lets through.
+        """
+        lim = self.limits
+        distance = goal - self._setpoint.position
+        direction = np.sign(distance)
+        v0 = np.maximum(self._setpoint.velocity * direction, 0.0)
+        k = lim.acceleration * self._acceleration_over_jerk
+        rhs = np.maximum(v0 * v0 - k * v0 + 2 * lim.acceleration * np.abs(distance), 0.0)
+        speed_up = 0.9 * (np.sqrt(k * k + 4 * rhs) - k) / 2  # 0.9: the ramp is idealised
+        reachable = np.maximum(speed_up, v0)
+        same_way = velocity * direction > 0
+        return np.where(same_way, direction * np.minimum(np.abs(velocity), reachable), 0.0)
+
     def _advance(self) -> None:
         result = self._step()
-        if self._out.new_calculation and not self._planned_within_limits():
-            # The pass-through velocity would carry a joint past a limit: settle instead.
-            self._end_stream()
-            result = self._step()
+        if self._out.new_calculation:
+            rejected = self._rejected_pass_through()
+            if rejected.any():
+                self._settle(rejected)
+                result = self._step()
         if result not in _OK_RESULTS:
             raise ValueError(f"interpolator could not plan from the current state ({result})")
         out = self._out
+        self._arrived = np.array(out.trajectory.independent_min_durations) <= out.time + 1e-12
         self._setpoint = Setpoint(
             self._last_t_ns + self.config.control_period_ns, np.array(out.new_position),
             np.array(out.new_velocity), np.array(out.new_acceleration))
@@ -314,17 +382,36 @@ class SetpointInterpolator:
         except RuckigError as error:
             raise ValueError(f"interpolator input rejected: {_ruckig_message(error)}") from None
 
-    def _planned_within_limits(self) -> bool:
-        return _extrema_within(self._out.trajectory, self.limits, 1e-9)
+    def _rejected_pass_through(self) -> np.ndarray:
+        """Joints whose new plan, with a pass-through velocity, leaves the limits or runs up."""
+        trajectory = self._out.trajectory
+        lower, upper = self.limits.lower.tolist(), self.limits.upper.tolist()
+        rejected = np.zeros(self.limits.dof, dtype=bool)
+        for joint, velocity in enumerate(self._target_velocity.tolist()):
+            if velocity == 0.0:
+                continue
+            bound = trajectory.position_extrema[joint]
+            outside = bound.min < lower[joint] - 1e-9 or bound.max > upper[joint] + 1e-9
+            profile = trajectory.profiles[0][joint]
+            rejected[joint] = outside or _runs_up(profile, 1.0 if velocity > 0 else -1.0)
+        return rejected
 
 
-def _extrema_within(trajectory: Trajectory, limits: MotionLimits, tolerance: float) -> bool:
-    # A plain loop: six scalar comparisons cost less than two numpy reductions here.
-    return all(
-        lower - tolerance <= bound.min and bound.max <= upper + tolerance
-        for bound, lower, upper in zip(trajectory.position_extrema, limits.lower_list,
-                                       limits.upper_list, strict=True)
-    )
+def _runs_up(profile: Profile, direction: float) -> bool:
+    """True when the profile's velocity points against ``direction`` at any instant.
+
+    Velocity is piecewise quadratic: check every phase boundary and every phase's vertex.
+    """
+    velocities, accelerations, jerks = profile.v, profile.a, profile.j  # each read copies
+    # v and a hold one more entry than t and j (the end state): zip stops at the phases.
+    for duration, v, a, j in zip(profile.t, velocities, accelerations, jerks, strict=False):
+        if v * direction < -1e-12:
+            return True
+        if duration > 0.0 and j != 0.0 and 0.0 < -a / j < duration:
+            vertex = v - a * a / (2 * j)
+            if vertex * direction < -1e-12:
+                return True
+    return velocities[-1] * direction < -1e-12
 
 
 def _checked_vector(values: np.ndarray, dof: int, what: str) -> np.ndarray:
@@ -365,13 +452,17 @@ def _input(limits: MotionLimits, q: np.ndarray, qd: np.ndarray | None = None,
 
 def _calculate(inp: InputParameter, dof: int, what: str) -> JointTrajectory:
     trajectory = Trajectory(dof)
+    _calculate_into(inp, trajectory, what)
+    return JointTrajectory(trajectory)
+
+
+def _calculate_into(inp: InputParameter, trajectory: Trajectory, what: str) -> None:
     try:
-        result = Ruckig(dof).calculate(inp, trajectory)
+        result = Ruckig(trajectory.degrees_of_freedom).calculate(inp, trajectory)
     except RuckigError as error:
         raise ValueError(f"{what} rejected: {_ruckig_message(error)}") from None
     if result not in _OK_RESULTS:
         raise ValueError(f"{what} could not be planned ({result})")
-    return JointTrajectory(trajectory)
 
 
 def _ruckig_message(error: RuckigError) -> str:

@@ -12,11 +12,10 @@ from assurance.clock import ns_to_ms
 from assurance.envelope import Chunk, MalformedChunk, ReplacementPolicy
 from assurance.fallback import IRRELEVANT, refusal_trigger
 from assurance.gates import (
-    AdmissionContext,
     Timing,
     content_reasons,
     context_reasons,
-    divergence,
+    divergence_verdict,
     identity_reasons,
     time_verdict,
 )
@@ -63,9 +62,8 @@ def _evaluate(state: CoreState, chunk: Chunk, seen: Seen) -> None:
     reasons += context_reasons(chunk, ctx)
     timing = time_verdict(chunk, ctx, t_obs)
     reasons += timing.reasons
-    drift = _divergence(state, chunk, ctx, timing)
-    if drift is not None and drift > ctx.policy.max_divergence:
-        reasons.append(R.STATE_DIVERGED)
+    drift, diverged = divergence_verdict(chunk, ctx, timing.first_due)
+    reasons += diverged
     plan = _plan(state, chunk, timing, t_obs) if _can_plan(chunk, timing, reasons) else None
     if plan is not None:
         reasons += _feasibility_reasons(state, plan)
@@ -108,15 +106,6 @@ def _feasibility_reasons(state: CoreState, plan: MergePlan) -> list[R]:
     if plan.older_than_queue:
         reasons.append(R.REORDERED)
     return reasons
-
-
-def _divergence(
-    state: CoreState, chunk: Chunk, ctx: AdmissionContext, timing: Timing
-) -> float | None:
-    """Divergence of a finite chunk of the session's width; None when it cannot be measured."""
-    if chunk.nonfinite or chunk.actions.shape[1] != state.config.client.action_dim:
-        return None
-    return divergence(chunk, ctx, timing.first_due)
 
 
 def _measurements(

@@ -1,0 +1,290 @@
+"""Arm kinematics on Pinocchio, built from the same MJCF file that MuJoCo simulates.
+
+Forward kinematics and the frame Jacobian of the TCP, a damped-least-squares IK that never
+leaves the joint limits, a Cartesian-delta helper for pre-contact proposals expressed as
+"move the TCP by this much in the base frame", and an axis-aligned workspace box.
+
+Pure: no I/O, threads or clocks. An :class:`ArmKinematics` owns one Pinocchio ``Data``
+scratch buffer, so use one instance per thread.
+
+The model comes from ``pin.buildModelFromMJCF`` on the arm file; every joint that is not an
+arm joint (the gripper's fingers) is locked at its neutral value with
+``pin.buildReducedModel``, so the kinematic state is exactly the six arm angles.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from enum import StrEnum
+from pathlib import Path
+
+import numpy as np
+import pinocchio as pin
+
+from stubs.robot_model import ARM_JOINT_NAMES, ARM_MODEL, TCP_SITE
+
+
+class JacobianFrame(StrEnum):
+    """Which axes the 6×6 Jacobian's rows are expressed in (linear rows first)."""
+
+    BASE = "base"
+    """TCP point velocity and angular velocity in base-frame axes (LOCAL_WORLD_ALIGNED)."""
+    TOOL = "tool"
+    """The same twist in the TCP frame's own axes (LOCAL)."""
+
+
+_IDENTITY3 = np.eye(3)
+_PIN_FRAME = {
+    JacobianFrame.BASE: pin.ReferenceFrame.LOCAL_WORLD_ALIGNED,
+    JacobianFrame.TOOL: pin.ReferenceFrame.LOCAL,
+}
+
+
+@dataclass(frozen=True, slots=True)
+class KinematicsConfig:
+    model_path: Path = ARM_MODEL
+    tcp_frame: str = TCP_SITE
+    arm_joints: tuple[str, ...] = ARM_JOINT_NAMES
+
+
+@dataclass(frozen=True, slots=True)
+class IKConfig:
+    """Damped least squares, ``dq = Jᵀ (J Jᵀ + λ·I)⁻¹ e``, each iterate clamped into the limits.
+
+    ``λ = damping + ‖e‖²`` (Levenberg–Marquardt style, as in Sugihara 2011): heavy damping far
+    from the target keeps steps sane near singularities, and vanishing damping close to it
+    gives Gauss–Newton convergence even where the Jacobian is nearly singular.
+    """
+
+    max_iterations: int = 100
+    position_tolerance: float = 1e-6
+    """Metres."""
+    rotation_tolerance: float = 1e-5
+    """Radians."""
+    damping: float = 1e-6
+    """Floor of λ, so the system stays solvable at an exact singularity."""
+    max_step: float = 0.5
+    """Largest joint change per iteration (rad): a trust region for far-away targets."""
+
+    def __post_init__(self) -> None:
+        if self.max_iterations < 1:
+            raise ValueError(f"max_iterations must be at least 1, got {self.max_iterations}")
+        for name in ("position_tolerance", "rotation_tolerance", "damping", "max_step"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be positive and finite, got {value}")
+
+
+_DEFAULT_IK = IKConfig()
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class Pose:
+    """A TCP pose in the base frame: position (m) and rotation matrix."""
+
+    position: np.ndarray
+    rotation: np.ndarray
+
+    def __post_init__(self) -> None:
+        if np.shape(self.position) != (3,) or np.shape(self.rotation) != (3, 3):
+            raise ValueError("a Pose needs a 3-vector position and a 3x3 rotation")
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class IKResult:
+    q: np.ndarray
+    converged: bool
+    iterations: int
+    position_error: float
+    """Metres between the reached and the requested TCP position."""
+    rotation_error: float
+    """Radians between the reached and the requested TCP orientation."""
+
+    @property
+    def residual(self) -> float:
+        return float(np.hypot(self.position_error, self.rotation_error))
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class WorkspaceBox:
+    """An axis-aligned box in the base frame that the TCP must stay in."""
+
+    lower: np.ndarray
+    upper: np.ndarray
+
+    def __post_init__(self) -> None:
+        lower = np.array(self.lower, dtype=float)
+        upper = np.array(self.upper, dtype=float)
+        if lower.shape != (3,) or upper.shape != (3,):
+            raise ValueError("WorkspaceBox bounds must be 3-vectors")
+        if not (np.all(np.isfinite(lower)) and np.all(np.isfinite(upper))):
+            raise ValueError("WorkspaceBox bounds must be finite")
+        if np.any(lower > upper):
+            raise ValueError(f"WorkspaceBox lower {lower} exceeds upper {upper}")
+        lower.setflags(write=False)
+        upper.setflags(write=False)
+        object.__setattr__(self, "lower", lower)
+        object.__setattr__(self, "upper", upper)
+
+    def contains(self, position: np.ndarray) -> bool:
+        """True when ``position`` is inside the box or on its boundary (NaN is outside)."""
+        p = np.asarray(position, dtype=float)
+        return bool(np.all((p >= self.lower) & (p <= self.upper)))
+
+
+class ArmKinematics:
+    """FK, Jacobian and IK of the TCP frame of the arm model (see the module docstring)."""
+
+    def __init__(self, config: KinematicsConfig | None = None) -> None:
+        self.config = config or KinematicsConfig()
+        self.model = _arm_model(self.config)
+        self._data = self.model.createData()
+        if not self.model.existFrame(self.config.tcp_frame):
+            raise ValueError(f"{self.config.model_path} has no frame {self.config.tcp_frame!r}")
+        self._frame = self.model.getFrameId(self.config.tcp_frame)
+        self.lower = self.model.lowerPositionLimit.copy()
+        self.upper = self.model.upperPositionLimit.copy()
+        self.lower.setflags(write=False)
+        self.upper.setflags(write=False)
+
+    @property
+    def dof(self) -> int:
+        return int(self.model.nq)
+
+    def forward(self, q: np.ndarray) -> Pose:
+        """TCP pose at joint angles ``q``."""
+        q = self._joint_vector(q)
+        pin.forwardKinematics(self.model, self._data, q)
+        placement = pin.updateFramePlacement(self.model, self._data, self._frame)
+        return Pose(placement.translation.copy(), placement.rotation.copy())
+
+    def jacobian(self, q: np.ndarray, frame: JacobianFrame = JacobianFrame.BASE) -> np.ndarray:
+        """6×6 TCP Jacobian at ``q``: rows (vx, vy, vz, wx, wy, wz), columns the joints."""
+        q = self._joint_vector(q)
+        return pin.computeFrameJacobian(self.model, self._data, q, self._frame,
+                                        _PIN_FRAME[JacobianFrame(frame)]).copy()
+
+    def forward_with_jacobian(self, q: np.ndarray) -> tuple[Pose, np.ndarray]:
+        """Pose and base-axes Jacobian from one kinematics pass."""
+        pose, jac = self._pose_and_jacobian(self._joint_vector(q))
+        return Pose(pose.translation.copy(), pose.rotation.copy()), jac.copy()
+
+    def within_limits(self, q: np.ndarray) -> bool:
+        q = np.asarray(q, dtype=float)
+        return bool(np.all((q >= self.lower) & (q <= self.upper)))
+
+    def solve(self, target: Pose, q_start: np.ndarray, config: IKConfig | None = None) -> IKResult:
+        """Joint angles that put the TCP at ``target``, warm-started from ``q_start``.
+
+        Every iterate is clamped into the joint limits, so the returned ``q`` is always inside
+        them even when the solve does not converge (``converged`` is then False and the
+        errors say how far off it is).
+
+        Raises:
+            ValueError: ``q_start`` has the wrong length, is not finite or is outside the
+                limits, or ``target`` is not finite or its rotation is not a rotation.
+        """
+        cfg = config or _DEFAULT_IK
+        q = self._checked_start(q_start)
+        _check_target(target)
+        tolerance_sq = (cfg.position_tolerance**2, cfg.rotation_tolerance**2)
+        for iteration in range(cfg.max_iterations + 1):
+            pose, jac = self._pose_and_jacobian(q)
+            error = _pose_error(target, pose.translation, pose.rotation)
+            position_sq, rotation_sq = float(error[:3] @ error[:3]), float(error[3:] @ error[3:])
+            converged = position_sq <= tolerance_sq[0] and rotation_sq <= tolerance_sq[1]
+            if converged or iteration == cfg.max_iterations:
+                break
+            step = _dls_step(jac, error, cfg.damping + position_sq + rotation_sq, cfg.max_step)
+            q = (q + step).clip(self.lower, self.upper)
+        position_error, rotation_error = math.sqrt(position_sq), math.sqrt(rotation_sq)
+        return IKResult(q, converged, iteration, position_error, rotation_error)
+
+    def cartesian_delta_target(
+        self,
+        q: np.ndarray,
+        delta_position: np.ndarray,
+        delta_rotation: np.ndarray | None = None,
+        config: IKConfig | None = None,
+    ) -> IKResult:
+        """Joint target for moving the TCP by a delta expressed in the base frame.
+
+        Args:
+            q: current joint angles (also the IK warm start).
+            delta_position: TCP translation in base axes (m).
+            delta_rotation: rotation vector (axis·angle, rad) in base axes, applied on the
+                left of the current orientation; None for no rotation.
+            config: IK settings.
+        """
+        current = self.forward(q)
+        d_position = np.asarray(delta_position, dtype=float)
+        d_rotation = np.zeros(3) if delta_rotation is None else np.asarray(delta_rotation, float)
+        if d_position.shape != (3,) or d_rotation.shape != (3,):
+            raise ValueError("Cartesian deltas must be 3-vectors")
+        target = Pose(current.position + d_position, pin.exp3(d_rotation) @ current.rotation)
+        return self.solve(target, q, config)
+
+    def _pose_and_jacobian(self, q: np.ndarray) -> tuple[pin.SE3, np.ndarray]:
+        # computeFrameJacobian runs the joint placements itself; the frame placement is then
+        # one more cheap update, so pose and Jacobian come from a single kinematics pass.
+        jac = pin.computeFrameJacobian(self.model, self._data, q, self._frame,
+                                       pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)
+        return pin.updateFramePlacement(self.model, self._data, self._frame), jac
+
+    def _checked_start(self, q_start: np.ndarray) -> np.ndarray:
+        q = np.array(q_start, dtype=float)
+        if q.shape != (self.dof,):
+            raise ValueError(f"expected {self.dof} joint values, got shape {q.shape}")
+        if not ((q >= self.lower) & (q <= self.upper)).all():  # NaN fails this too
+            raise ValueError(f"IK start {q.tolist()} is not finite or outside the joint limits")
+        return q
+
+    def _joint_vector(self, q: np.ndarray) -> np.ndarray:
+        array = np.array(q, dtype=float)
+        if array.shape != (self.dof,):
+            raise ValueError(f"expected {self.dof} joint values, got shape {array.shape}")
+        if not np.all(np.isfinite(array)):
+            raise ValueError(f"joint vector is not finite: {array.tolist()}")
+        return array
+
+
+def _arm_model(config: KinematicsConfig) -> pin.Model:
+    full = pin.buildModelFromMJCF(str(config.model_path))
+    names = [full.names[j] for j in range(1, full.njoints)]
+    missing = [name for name in config.arm_joints if name not in names]
+    if missing:
+        raise ValueError(f"{config.model_path} has no joints {missing}")
+    locked = [full.getJointId(name) for name in names if name not in config.arm_joints]
+    model = pin.buildReducedModel(full, locked, pin.neutral(full)) if locked else full
+    if tuple(model.names[1:]) != tuple(config.arm_joints):
+        raise ValueError(f"arm joints {config.arm_joints} are not the model's kinematic chain "
+                         f"{tuple(model.names[1:])} in order")
+    if model.nq != len(config.arm_joints) or model.nv != model.nq:
+        raise ValueError(f"arm joints must be 1-DoF; got nq={model.nq} nv={model.nv}")
+    return model
+
+
+def _check_target(target: Pose) -> None:
+    if not np.isfinite(target.position).all():
+        raise ValueError(f"IK target position is not finite: {target.position.tolist()}")
+    # Also false for NaN: a non-finite rotation fails here.
+    if not np.abs(target.rotation @ target.rotation.T - _IDENTITY3).max() <= 1e-6:
+        raise ValueError("IK target rotation is not orthonormal (or not finite)")
+
+
+def _pose_error(target: Pose, position: np.ndarray, rotation: np.ndarray) -> np.ndarray:
+    """(position error, rotation-vector error), both in base axes, target minus current."""
+    error = np.empty(6)
+    error[:3] = target.position - position
+    error[3:] = pin.log3(target.rotation @ rotation.T)
+    return error
+
+
+def _dls_step(jac: np.ndarray, error: np.ndarray, damping: float, max_step: float) -> np.ndarray:
+    gram = jac @ jac.T
+    gram.flat[::7] += damping  # the diagonal of the 6x6
+    # A 2-D right-hand side takes numpy's faster solve path (~9 us instead of ~17 us here).
+    step = jac.T @ np.linalg.solve(gram, error[:, None])[:, 0]
+    largest = float(np.abs(step).max())
+    return step * (max_step / largest) if largest > max_step else step
