@@ -15,7 +15,8 @@ arm joint (the gripper's fingers) is locked at its neutral value with
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+import operator
+from dataclasses import dataclass, field
 from enum import StrEnum
 from pathlib import Path
 
@@ -112,6 +113,7 @@ class WorkspaceBox:
 
     lower: np.ndarray
     upper: np.ndarray
+    _bounds: tuple[list[float], list[float]] = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         lower = np.array(self.lower, dtype=float)
@@ -126,11 +128,15 @@ class WorkspaceBox:
         upper.setflags(write=False)
         object.__setattr__(self, "lower", lower)
         object.__setattr__(self, "upper", upper)
+        object.__setattr__(self, "_bounds", (lower.tolist(), upper.tolist()))
 
     def contains(self, position: np.ndarray) -> bool:
         """True when ``position`` is inside the box or on its boundary (NaN is outside)."""
-        p = np.asarray(position, dtype=float)
-        return bool(np.all((p >= self.lower) & (p <= self.upper)))
+        values = np.asarray(position, dtype=float).tolist()
+        if not isinstance(values, list) or len(values) != 3:
+            raise ValueError(f"a workspace position needs 3 values, got {values!r}")
+        low, high = self._bounds
+        return all(map(operator.le, low, values)) and all(map(operator.le, values, high))
 
 
 class ArmKinematics:
@@ -147,6 +153,9 @@ class ArmKinematics:
         self.upper = self.model.upperPositionLimit.copy()
         self.lower.setflags(write=False)
         self.upper.setflags(write=False)
+        # Plain-float copies: on six values, Python comparisons beat numpy reductions (.all(),
+        # .max() cost a few microseconds each here).
+        self._lower_list, self._upper_list = self.lower.tolist(), self.upper.tolist()
 
     @property
     def dof(self) -> int:
@@ -171,8 +180,10 @@ class ArmKinematics:
         return Pose(pose.translation.copy(), pose.rotation.copy()), jac.copy()
 
     def within_limits(self, q: np.ndarray) -> bool:
-        q = np.asarray(q, dtype=float)
-        return bool(np.all((q >= self.lower) & (q <= self.upper)))
+        """True when every joint is inside its limits (False for NaN)."""
+        values = np.asarray(q, dtype=float).tolist()
+        return all(map(operator.le, self._lower_list, values)) and all(
+            map(operator.le, values, self._upper_list))
 
     def solve(self, target: Pose, q_start: np.ndarray, config: IKConfig | None = None) -> IKResult:
         """Joint angles that put the TCP at ``target``, warm-started from ``q_start``.
@@ -192,7 +203,7 @@ class ArmKinematics:
         for iteration in range(cfg.max_iterations + 1):
             pose, jac = self._pose_and_jacobian(q)
             error = _pose_error(target, pose.translation, pose.rotation)
-            position_sq, rotation_sq = float(error[:3] @ error[:3]), float(error[3:] @ error[3:])
+            position_sq, rotation_sq = _squared_norms(error)
             converged = position_sq <= tolerance_sq[0] and rotation_sq <= tolerance_sq[1]
             if converged or iteration == cfg.max_iterations:
                 break
@@ -236,7 +247,7 @@ class ArmKinematics:
         q = np.array(q_start, dtype=float)
         if q.shape != (self.dof,):
             raise ValueError(f"expected {self.dof} joint values, got shape {q.shape}")
-        if not ((q >= self.lower) & (q <= self.upper)).all():  # NaN fails this too
+        if not self.within_limits(q):  # NaN fails this too
             raise ValueError(f"IK start {q.tolist()} is not finite or outside the joint limits")
         return q
 
@@ -244,7 +255,7 @@ class ArmKinematics:
         array = np.array(q, dtype=float)
         if array.shape != (self.dof,):
             raise ValueError(f"expected {self.dof} joint values, got shape {array.shape}")
-        if not np.all(np.isfinite(array)):
+        if not all(map(math.isfinite, array.tolist())):
             raise ValueError(f"joint vector is not finite: {array.tolist()}")
         return array
 
@@ -266,11 +277,17 @@ def _arm_model(config: KinematicsConfig) -> pin.Model:
 
 
 def _check_target(target: Pose) -> None:
-    if not np.isfinite(target.position).all():
+    if not all(map(math.isfinite, target.position.tolist())):
         raise ValueError(f"IK target position is not finite: {target.position.tolist()}")
-    # Also false for NaN: a non-finite rotation fails here.
-    if not np.abs(target.rotation @ target.rotation.T - _IDENTITY3).max() <= 1e-6:
+    deviation = (target.rotation @ target.rotation.T - _IDENTITY3).ravel().tolist()
+    if not all(abs(value) <= 1e-6 for value in deviation):  # also false for NaN
         raise ValueError("IK target rotation is not orthonormal (or not finite)")
+
+
+def _squared_norms(error: np.ndarray) -> tuple[float, float]:
+    """Squared position and rotation errors (plain floats: cheaper than two dot products)."""
+    px, py, pz, rx, ry, rz = error.tolist()
+    return px * px + py * py + pz * pz, rx * rx + ry * ry + rz * rz
 
 
 def _pose_error(target: Pose, position: np.ndarray, rotation: np.ndarray) -> np.ndarray:
@@ -286,5 +303,5 @@ def _dls_step(jac: np.ndarray, error: np.ndarray, damping: float, max_step: floa
     gram.flat[::7] += damping  # the diagonal of the 6x6
     # A 2-D right-hand side takes numpy's faster solve path (~9 us instead of ~17 us here).
     step = jac.T @ np.linalg.solve(gram, error[:, None])[:, 0]
-    largest = float(np.abs(step).max())
+    largest = max(map(abs, step.tolist()))
     return step * (max_step / largest) if largest > max_step else step
