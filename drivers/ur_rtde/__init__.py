@@ -1,0 +1,7 @@
+"""Universal Robots e-Series arms over RTDE, through the real ur_rtde library.
+
+``URRTDEDriver`` (driver.py) implements the warden driver hooks; ``URSettings`` (settings.py) is
+its manifest table; ``tables.py`` holds the controller's status words and what they mean;
+``link.py`` is the only code that touches ur_rtde objects; ``probe.py`` checks a controller in
+plain sockets before the library (whose constructors hold the GIL) is let near it.
+"""

@@ -1,0 +1,266 @@
+"""Universal Robots e-Series over RTDE, through the real ur_rtde 1.6.5 library.
+
+Positions stream as servoJ at the control rate, velocities as speedJ; STOP is stopJ, HOLD is
+servoJ to the measured position (stopJ while inactive). Every read takes one snapshot of the
+receive interface and maps the controller's own words: safety bits (e-stop → E_STOP,
+protective/safeguard stop → CONTROLLER_FAULT), robot mode and runtime state while streaming
+(→ CONTROLLER_FAULT), a timestamp that stopped advancing (→ WATCHDOG) and a lost link
+(→ LINK_LOST). All library calls run on this device's thread with a deadline; see ``_sdk``
+for why construction, destruction and blocking commands are handled with such care.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import time
+from collections.abc import Callable, Mapping
+from typing import Any, TypeVar
+
+from assurance.reasons import ReasonCode
+from drivers.base import (
+    Applied,
+    Command,
+    CommandKind,
+    ControlConfig,
+    DeviceFault,
+    DriverError,
+    DriverInitError,
+    DriverIOError,
+    DriverTimeout,
+    NotConnected,
+    StateSample,
+)
+from drivers.device_thread import DeviceThread
+from drivers.settings import SettingsError
+from drivers.ur_rtde import tables
+from drivers.ur_rtde.link import Link, LinkDown, LinkStalled, Mode, Snapshot
+from drivers.ur_rtde.probe import ControllerUnreachable, probe_controller
+from drivers.ur_rtde.settings import URSettings
+
+T = TypeVar("T")
+CLOSE_TIMEOUT_S = 10.0
+"""aclose waits this long: ur_rtde's disconnect can sit out its own 2.5 s read deadline."""
+
+
+class URRTDEDriver:
+    """One UR arm. ``settings`` come from the manifest; ``name`` labels errors and traces."""
+
+    def __init__(self, settings: URSettings, name: str = "ur_rtde") -> None:
+        self.name = name
+        self.settings = settings
+        self._thread: DeviceThread | None = None
+        self._link: Link | None = None
+        self._control: ControlConfig | None = None
+        self._active = False
+        self._seq = 0
+
+    @classmethod
+    def from_mapping(cls, table: Mapping[str, Any], where: str, name: str = "ur_rtde"
+                     ) -> URRTDEDriver:
+        """Build from a manifest table; bad settings raise DriverInitError naming the host."""
+        try:
+            return cls(URSettings.from_mapping(table, where), name)
+        except SettingsError as error:
+            host = table.get("host", "<no host>")
+            raise DriverInitError(name, f"bad settings for the UR arm at {host}: {error}"
+                                  ) from error
+
+    @property
+    def controller_time_s(self) -> float | None:
+        """The controller's own clock in the newest sample read (diagnostics, benchmarks)."""
+        if self._link is None or self._link.last_timestamp < 0:
+            return None
+        return self._link.last_timestamp
+
+    # -- lifecycle hooks ----------------------------------------------------------------------
+
+    async def connect(self) -> None:
+        """Pre-flight the controller, then open both interfaces, in a bounded number of tries."""
+        if self._thread is None:
+            self._thread = DeviceThread(self.name)
+        attempts = 1 + self.settings.reconnect_attempts
+        for attempt in range(1, attempts + 1):
+            try:
+                await self._connect_once()
+                return
+            except ControllerUnreachable:
+                if attempt == attempts:
+                    raise
+                await asyncio.sleep(self.settings.reconnect_backoff_s)
+
+    async def configure(self, control: ControlConfig) -> None:
+        host = self.settings.host
+        sizes = {control.dof, len(control.q_lower), len(control.q_upper), len(control.v_max)}
+        if sizes != {tables.DOF}:
+            raise DriverInitError(self.name, f"the UR arm at {host} has {tables.DOF} joints; "
+                                  f"the manifest's control loop and limits say {control.dof} "
+                                  f"(limits of {len(control.q_lower)}, {len(control.q_upper)}, "
+                                  f"{len(control.v_max)})")
+        if control.period_ns * 1e-9 < self.settings.rtde_period_s:
+            raise DriverInitError(
+                self.name, f"control period {control.period_ns / 1e6:.3f} ms is shorter than "
+                f"the RTDE period of the arm at {host} ({self.settings.frequency_hz} Hz): "
+                "raise frequency_hz or lower the control rate")
+        self._control = control
+
+    async def activate(self) -> None:
+        """Check the arm can follow setpoints; restart the control script if it had stopped."""
+        await self._read_checked(streaming=False)
+        link = self._link_or_raise()
+        if not await self._run(link.program_running):
+            await self._run(link.restart_script, timeout_s=self.settings.stop_timeout_s)
+        await self._read_checked(streaming=True)
+        self._active = True
+
+    async def read(self) -> StateSample:
+        snapshot = await self._read_checked(streaming=self._active)
+        self._seq += 1
+        return StateSample(
+            seq=self._seq, t_mono_ns=snapshot.t_mono_ns, source=self.name, q=snapshot.q,
+            qd=snapshot.qd, wrench=snapshot.tcp_force, speed_scaling=snapshot.speed_scaling,
+        )
+
+    async def write(self, command: Command) -> Applied:
+        link = self._link_or_raise()
+        if command.kind is CommandKind.POSITION:
+            if not _well_formed(command.q):
+                return _refused(command.kind, ReasonCode.NONFINITE)
+            q = self._clip_position(command.q)
+            dt = max(self._period_s(), tables.CONTROLLER_CYCLE_S)
+            return await self._applied(command.kind, lambda: link.servo_j(q, dt), q=q,
+                                       timeout_s=self._setpoint_timeout(link, Mode.SERVO))
+        if command.kind is CommandKind.VELOCITY:
+            if not _well_formed(command.qd):
+                return _refused(command.kind, ReasonCode.NONFINITE)
+            qd = self._clip_velocity(command.qd)
+            return await self._applied(command.kind, lambda: link.speed_j(qd), qd=qd,
+                                       timeout_s=self._setpoint_timeout(link, Mode.SPEED))
+        if command.kind is CommandKind.HOLD:
+            return await self.hold()
+        return await self._stop()
+
+    async def hold(self) -> Applied:
+        """Servo to the measured position while streaming; stopJ when not streaming."""
+        link = self._link_or_raise()
+        q = (await self._read_checked(streaming=self._active)).q
+        if self._active:
+            dt = max(self._period_s(), tables.CONTROLLER_CYCLE_S)
+            return await self._applied(CommandKind.HOLD, lambda: link.servo_j(q, dt), q=q,
+                                       timeout_s=self._setpoint_timeout(link, Mode.SERVO))
+        await self._run(link.stop, timeout_s=self.settings.stop_timeout_s)
+        return Applied(kind=CommandKind.HOLD, t_mono_ns=time.monotonic_ns(), q=q)
+
+    async def deactivate(self) -> None:
+        """End servo or speed mode (the arm decelerates and stays powered)."""
+        self._active = False
+        await self._run(self._link_or_raise().end_streaming,
+                        timeout_s=self.settings.stop_timeout_s)
+
+    async def aclose(self) -> None:
+        """Stop the script if the link is healthy, release both interfaces. Safe to call twice."""
+        self._active = False
+        thread, link = self._thread, self._link
+        self._thread, self._link = None, None
+        if thread is None:
+            return
+        try:
+            if link is not None:
+                await thread.run(CLOSE_TIMEOUT_S, link.release)
+        except DriverTimeout:
+            pass  # the device thread is abandoned inside the library; nothing else holds it
+        finally:
+            thread.close()
+
+    # -- helpers ------------------------------------------------------------------------------
+
+    async def _connect_once(self) -> None:
+        settings = self.settings
+        # The probe makes four connections, each bounded by connect_timeout_s.
+        version = await self._run(probe_controller, self.name, settings.host,
+                                  settings.connect_timeout_s,
+                                  timeout_s=5 * settings.connect_timeout_s)
+        if not tables.version_supported(version):
+            raise DriverInitError(
+                self.name, f"the controller at {settings.host} reports URControl "
+                f"{'.'.join(map(str, version))}; this driver needs e-Series PolyScope "
+                f"{'.'.join(map(str, tables.MIN_VERSION))} or newer 5.x: check the controller "
+                "software (CB3 and PolyScope X speak a different protocol to this driver)")
+        if self._link is None:
+            self._link = Link(self.name, settings)
+        await self._run(self._link.open, timeout_s=2 * settings.connect_timeout_s)
+
+    async def _read_checked(self, streaming: bool) -> Snapshot:
+        snapshot = await self._run(self._link_or_raise().snapshot)
+        faults = tables.device_faults(snapshot.safety_bits, snapshot.robot_mode,
+                                      snapshot.runtime_state, streaming)
+        if faults:
+            detail = "; ".join(fault.detail for fault in faults)
+            raise DeviceFault(self.name, f"arm at {self.settings.host}: {detail}",
+                              faults[0].reason)
+        return snapshot
+
+    async def _applied(self, kind: CommandKind, send: Callable[[], bool], *,
+                       q: tuple[float, ...] = (), qd: tuple[float, ...] = (),
+                       timeout_s: float | None = None) -> Applied:
+        if await self._run(send, timeout_s=timeout_s):
+            return Applied(kind=kind, t_mono_ns=time.monotonic_ns(), q=q, qd=qd)
+        # The library says no without saying why: the status words do.
+        await self._read_checked(streaming=True)
+        return _refused(kind, ReasonCode.CONTROLLER_REJECT)
+
+    async def _stop(self) -> Applied:
+        link = self._link_or_raise()
+        await self._run(link.stop, timeout_s=self.settings.stop_timeout_s)
+        q = (await self._read_checked(streaming=False)).q
+        return Applied(kind=CommandKind.STOP, t_mono_ns=time.monotonic_ns(), q=q)
+
+    async def _run(self, fn: Callable[..., T], *args: object, timeout_s: float | None = None
+                   ) -> T:
+        """Call ``fn`` on the device thread; turn link trouble into the driver's errors."""
+        if self._thread is None:
+            raise NotConnected(self.name, f"not connected to the arm at {self.settings.host}")
+        try:
+            return await self._thread.run(timeout_s or self.settings.call_timeout_s, fn, *args)
+        except LinkDown as error:
+            raise NotConnected(self.name, f"{self.settings.host}: {error}") from error
+        except LinkStalled as error:
+            raise DriverTimeout(self.name, f"{self.settings.host}: {error}") from error
+        except DriverError:
+            raise
+        except RuntimeError as error:
+            raise DriverIOError(self.name, f"ur_rtde: {error}") from error
+
+    def _link_or_raise(self) -> Link:
+        if self._link is None:
+            raise NotConnected(self.name, f"not connected to the arm at {self.settings.host}")
+        return self._link
+
+    def _setpoint_timeout(self, link: Link, mode: Mode) -> float:
+        # Changing between servo and speed mode first stops the other one, and that waits
+        # for the arm to decelerate.
+        if link.switching_to(mode):
+            return self.settings.stop_timeout_s
+        return self.settings.call_timeout_s
+
+    def _period_s(self) -> float:
+        return self._control.period_ns * 1e-9 if self._control else tables.CONTROLLER_CYCLE_S
+
+    def _clip_position(self, q: tuple[float, ...]) -> tuple[float, ...]:
+        if self._control is None:
+            return tuple(q)
+        low, high = self._control.q_lower, self._control.q_upper
+        return tuple(min(max(v, lo), hi) for v, lo, hi in zip(q, low, high, strict=True))
+
+    def _clip_velocity(self, qd: tuple[float, ...]) -> tuple[float, ...]:
+        limits = self._control.v_max if self._control else (tables.JOINT_VELOCITY_RANGE[1],) * 6
+        return tuple(min(max(v, -m), m) for v, m in zip(qd, limits, strict=True))
+
+
+def _well_formed(values: tuple[float, ...]) -> bool:
+    """Six finite numbers: anything else is refused before it reaches the library."""
+    return len(values) == tables.DOF and all(math.isfinite(v) for v in values)
+
+
+def _refused(kind: CommandKind, reason: ReasonCode) -> Applied:
+    return Applied(kind=kind, t_mono_ns=time.monotonic_ns(), accepted=False, reason=reason)

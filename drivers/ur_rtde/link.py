@@ -1,0 +1,267 @@
+"""Everything that touches ur_rtde objects. Runs only on the device thread, one call at a time.
+
+The link owns the receive and control interfaces, the streaming mode (servo, speed or none) and
+the freshness of the data stream. Blocking commands are sent only after the stream proved fresh:
+on a dead or stalled link ur_rtde would wait up to 300 s for a "done" that never comes, and a
+thread stuck there cannot even be joined at exit.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from enum import StrEnum
+
+from assurance.reasons import ReasonCode
+from drivers.base import DeviceFault, DriverInitError
+from drivers.ur_rtde import _sdk, tables
+from drivers.ur_rtde.settings import URSettings
+
+SCRIPT_START_TIMEOUT_S = 1.0
+POLL_S = 0.0005
+
+
+class LinkDown(ConnectionError):
+    """An interface reports it is no longer connected (→ NotConnected, LINK_LOST)."""
+
+
+class LinkStalled(Exception):
+    """The controller stopped sending new data (→ DriverTimeout, WATCHDOG).
+
+    Deliberately not a TimeoutError: DeviceThread.run reads any TimeoutError that leaves the
+    call as its own deadline expiring, and would report "took longer than" instead of this."""
+
+
+class Mode(StrEnum):
+    IDLE = "idle"
+    SERVO = "servo"
+    SPEED = "speed"
+
+
+@dataclass(frozen=True, slots=True)
+class Snapshot:
+    t_mono_ns: int
+    timestamp: float
+    q: tuple[float, ...]
+    qd: tuple[float, ...]
+    tcp_force: tuple[float, ...]
+    robot_mode: int
+    safety_bits: int
+    runtime_state: int
+    speed_scaling: float
+    """Effective scaling: the trajectory limiter's speed_scaling times the speed slider."""
+
+
+class Link:
+    def __init__(self, device: str, settings: URSettings) -> None:
+        self.device = device
+        self.settings = settings
+        self.receive: _sdk.ReceiveInterface | None = None
+        self.control: _sdk.ControlInterface | None = None
+        self.mode = Mode.IDLE
+        self._last_timestamp = -1.0
+        self._last_change_ns = 0
+
+    # -- connection ---------------------------------------------------------------------------
+
+    def open(self) -> None:
+        """Open the receive session, check the arm, then the control session.
+
+        An interface that lost its link is ``reconnect()``-ed (our bounded retry, called only
+        from connect): unlike building a new one, that neither leaks the old one nor runs its
+        destructor, which sleeps 0.5 s with the GIL held.
+        """
+        host = self.settings.host
+        try:
+            self._open_receive()
+            self._check_ready_for_script()
+            self._open_control()
+        except RuntimeError as error:  # ur_rtde reports every connection problem this way
+            raise DriverInitError(self.device, f"ur_rtde could not connect to the arm at {host}: "
+                                  f"{error}") from error
+        self.mode = Mode.IDLE
+        self._last_change_ns = time.monotonic_ns()
+
+    def _open_receive(self) -> None:
+        if self.receive is None:
+            self.receive = _sdk.open_receive(self.settings.host, self.settings.frequency_hz,
+                                             tables.RECEIVE_VARIABLES)
+        elif not self.receive.isConnected():
+            self.receive.reconnect()
+
+    def _open_control(self) -> None:
+        if self.control is None:
+            self.control = _sdk.open_control(self.settings.host)
+        elif not self.control.isConnected():
+            self.control.reconnect()
+
+    def _check_ready_for_script(self) -> None:
+        # The control constructor waits 5 s (GIL held) for a script the controller will not
+        # start during a safety stop or without power: find out first, and say why.
+        receive = self._receive()
+        bits, robot_mode = receive.getSafetyStatusBits(), receive.getRobotMode()
+        faults = tables.device_faults(bits, robot_mode, tables.RuntimeState.PLAYING, True)
+        if faults:
+            raise DeviceFault(self.device, f"arm at {self.settings.host} cannot run the control "
+                              f"script: {faults[0].detail}", faults[0].reason)
+
+    def release(self) -> None:
+        """Stop the control script if healthy; drop both interfaces (their destructors sleep)."""
+        healthy = self._fresh()
+        control, receive = self.control, self.receive
+        self.control, self.receive = None, None
+        if control is not None:
+            _close(control, healthy, control.stopScript)
+            del control  # destructor runs here, on the device thread, not on the event loop
+        if receive is not None:
+            _close(receive, healthy, lambda: None)
+            del receive
+
+    # -- reading ------------------------------------------------------------------------------
+
+    def snapshot(self) -> Snapshot:
+        receive = self._require_connected()
+        now = time.monotonic_ns()
+        snapshot = Snapshot(
+            t_mono_ns=now, timestamp=receive.getTimestamp(), q=tuple(receive.getActualQ()),
+            qd=tuple(receive.getActualQd()), tcp_force=tuple(receive.getActualTCPForce()),
+            robot_mode=receive.getRobotMode(), safety_bits=receive.getSafetyStatusBits(),
+            runtime_state=receive.getRuntimeState(),
+            speed_scaling=receive.getSpeedScaling() * receive.getTargetSpeedFraction(),
+        )
+        self._track_freshness(snapshot.timestamp, now)
+        return snapshot
+
+    @property
+    def last_timestamp(self) -> float:
+        """The controller's clock (s since it booted) in the newest sample read, or -1."""
+        return self._last_timestamp
+
+    def _track_freshness(self, timestamp: float, now_ns: int) -> None:
+        if timestamp != self._last_timestamp:
+            self._last_timestamp, self._last_change_ns = timestamp, now_ns
+            return
+        age_s = (now_ns - self._last_change_ns) * 1e-9
+        if age_s > self.settings.stall_after_s:
+            raise LinkStalled(f"no new RTDE data for {age_s:.3f} s (more than "
+                              f"{self.settings.stall_periods} periods)")
+
+    # -- commanding ---------------------------------------------------------------------------
+
+    def servo_j(self, q: tuple[float, ...], dt: float) -> bool:
+        control = self._require_control()
+        if self.mode is Mode.SPEED:
+            self.end_streaming()
+        self.mode = Mode.SERVO
+        s = self.settings
+        return self._guarded(lambda: control.servoJ(
+            list(q), s.servo_velocity, s.servo_acceleration, dt, s.servo_lookahead_s,
+            s.servo_gain))
+
+    def speed_j(self, qd: tuple[float, ...]) -> bool:
+        control = self._require_control()
+        if self.mode is Mode.SERVO:
+            self.end_streaming()
+        self.mode = Mode.SPEED
+        return self._guarded(
+            lambda: control.speedJ(list(qd), self.settings.speed_acceleration, 0.0))
+
+    def end_streaming(self) -> None:
+        """servoStop / speedStop: the script leaves its servo or speed thread and decelerates."""
+        control = self._require_fresh()
+        if self.mode is Mode.SERVO:
+            control.servoStop(self.settings.servo_stop_deceleration)
+        elif self.mode is Mode.SPEED:
+            control.speedStop(self.settings.stop_deceleration)
+        self.mode = Mode.IDLE
+
+    def stop(self) -> None:
+        """Leave any streaming mode, then stopJ (synchronous: returns once decelerated)."""
+        self.end_streaming()
+        self._require_fresh().stopJ(self.settings.stop_deceleration, False)
+
+    def program_running(self) -> bool:
+        """The control session's own view, which is what ur_rtde checks before every command."""
+        return self._require_control().isProgramRunning()
+
+    def restart_script(self) -> None:
+        """Upload rtde_control again (after a cleared safety stop the old one has ended)."""
+        control = self._require_fresh()
+        control.reuploadScript()
+        deadline = time.monotonic() + SCRIPT_START_TIMEOUT_S
+        # Both sessions must have seen it: each gets its own packages, a few ms apart.
+        while not (control.isProgramRunning()
+                   and self._receive().getRuntimeState() == tables.RuntimeState.PLAYING):
+            if time.monotonic() > deadline:
+                raise DeviceFault(self.device, f"the control script did not start on the arm "
+                                  f"at {self.settings.host}", ReasonCode.CONTROLLER_FAULT)
+            time.sleep(POLL_S)
+        self.mode = Mode.IDLE
+
+    # -- guards -------------------------------------------------------------------------------
+
+    def _receive(self) -> _sdk.ReceiveInterface:
+        if self.receive is None:
+            raise LinkDown("the RTDE receive interface is closed")
+        return self.receive
+
+    def _require_connected(self) -> _sdk.ReceiveInterface:
+        receive = self._receive()
+        if not receive.isConnected():
+            raise LinkDown("the RTDE receive session closed (controller gone, or silent > 2.5 s)")
+        if self.control is not None and not self.control.isConnected():
+            raise LinkDown("the RTDE control session closed")
+        return receive
+
+    def _guarded(self, send: Callable[[], bool]) -> bool:
+        # A write to a socket the controller closed makes ur_rtde reconnect inside the call
+        # and raise RuntimeError when that fails: the link is lost either way.
+        try:
+            return send()
+        except RuntimeError as error:
+            raise LinkDown(f"ur_rtde: {error}") from error
+
+
+
+    def _require_control(self) -> _sdk.ControlInterface:
+        self._require_connected()
+        if self.control is None:
+            raise LinkDown("the RTDE control interface is closed")
+        return self.control
+
+    def _require_fresh(self) -> _sdk.ControlInterface:
+        control = self._require_control()
+        if not self._fresh():
+            raise LinkStalled("no new RTDE data: not sending a command that waits for the arm")
+        return control
+
+    def switching_to(self, mode: Mode) -> bool:
+        """Whether a setpoint of ``mode`` first ends another streaming mode (a blocking stop)."""
+        return self.mode not in (Mode.IDLE, mode)
+
+    def _fresh(self) -> bool:
+        """Connected, and the timestamp moves within the stall threshold (usually one period)."""
+        receive = self.receive
+        if receive is None or not receive.isConnected():
+            return False
+        first = receive.getTimestamp()
+        deadline = time.monotonic() + self.settings.stall_after_s
+        while time.monotonic() < deadline:
+            if receive.getTimestamp() != first:
+                return True
+            time.sleep(POLL_S)
+        return False
+
+
+def _close(interface: _sdk.ReceiveInterface | _sdk.ControlInterface, healthy: bool,
+           tidy: Callable[[], None]) -> None:
+    """Healthy: tidy up and let the destructor disconnect. Unhealthy: disconnect explicitly
+    first, because the destructor would sit out the library's read deadline with the GIL held."""
+    try:
+        if healthy:
+            tidy()
+        elif interface.isConnected():
+            interface.disconnect()
+    except RuntimeError:
+        pass  # closing goes on regardless; the link is being dropped anyway

@@ -1,0 +1,93 @@
+"""Settings of one UR arm, from its manifest table (the one with ``driver = "ur_rtde"``)."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+from drivers.settings import settings_from_mapping
+from drivers.ur_rtde import tables
+
+
+@dataclass(frozen=True, slots=True)
+class URSettings:
+    host: str
+    """Controller address (the library's ports are fixed: 30004, 29999, 30003)."""
+    frequency_hz: float = 500.0
+    """RTDE output frequency the driver subscribes to (at most 500 Hz on e-Series)."""
+    servo_lookahead_s: float = 0.1
+    """servoJ lookahead time: longer is smoother and lags more. ur_rtde range [0.03, 0.2]."""
+    servo_gain: float = 300.0
+    """servoJ proportional gain. ur_rtde range [100, 2000]."""
+    servo_velocity: float = 0.5
+    """servoJ speed argument (unused by current controllers, still range-checked [0, 3.14])."""
+    servo_acceleration: float = 0.5
+    """servoJ acceleration argument (unused by current controllers, range [0, 40])."""
+    speed_acceleration: float = 0.5
+    """speedJ acceleration of the leading axis, rad/s², range [0, 40]."""
+    stop_deceleration: float = 2.0
+    """stopJ and speedStop deceleration of the leading axis, rad/s², range [0, 40]."""
+    servo_stop_deceleration: float = 10.0
+    """servoStop deceleration of the tool, m/s², range [0, 10]."""
+    connect_timeout_s: float = 5.0
+    """Bound on the pre-flight check and on building each ur_rtde interface."""
+    call_timeout_s: float = 0.5
+    """Bound on a read or a streamed setpoint (ur_rtde's own timeouts reach 300 s)."""
+    stop_timeout_s: float = 5.0
+    """Bound on commands that return once the arm has decelerated (stopJ, servoStop, ...)."""
+    stall_periods: int = 50
+    """No new RTDE timestamp for this many output periods while reading → WATCHDOG."""
+    reconnect_attempts: int = 2
+    """Extra connect attempts after the first one fails to reach the controller."""
+    reconnect_backoff_s: float = 0.5
+
+    def __post_init__(self) -> None:
+        problems = _problems(self)
+        if problems:
+            raise ValueError("; ".join(problems))
+
+    @classmethod
+    def from_mapping(cls, table: Mapping[str, Any], where: str) -> URSettings:
+        """Build from a manifest table; unknown keys and bad values raise SettingsError."""
+        return settings_from_mapping(cls, table, where)
+
+    @property
+    def rtde_period_s(self) -> float:
+        return 1.0 / self.frequency_hz
+
+    @property
+    def stall_after_s(self) -> float:
+        return self.stall_periods * self.rtde_period_s
+
+
+def _problems(s: URSettings) -> list[str]:
+    checks = [
+        ("servo_lookahead_s", s.servo_lookahead_s, tables.LOOKAHEAD_RANGE_S),
+        ("servo_gain", s.servo_gain, tables.GAIN_RANGE),
+        ("servo_velocity", s.servo_velocity, tables.JOINT_VELOCITY_RANGE),
+        ("servo_acceleration", s.servo_acceleration, tables.JOINT_ACCELERATION_RANGE),
+        ("speed_acceleration", s.speed_acceleration, tables.JOINT_ACCELERATION_RANGE),
+        ("stop_deceleration", s.stop_deceleration, tables.JOINT_ACCELERATION_RANGE),
+        ("servo_stop_deceleration", s.servo_stop_deceleration, tables.TOOL_ACCELERATION_RANGE),
+        ("frequency_hz", s.frequency_hz, (1.0, tables.MAX_RTDE_FREQUENCY_HZ)),
+        ("connect_timeout_s", s.connect_timeout_s, (0.1, 60.0)),
+        ("call_timeout_s", s.call_timeout_s, (0.01, 10.0)),
+        ("stop_timeout_s", s.stop_timeout_s, (0.1, 60.0)),
+        ("stall_periods", s.stall_periods, (2, 10_000)),
+        ("reconnect_attempts", s.reconnect_attempts, (0, 10)),
+        ("reconnect_backoff_s", s.reconnect_backoff_s, (0.0, 10.0)),
+    ]
+    problems = [
+        f"{key} = {value} is outside [{low}, {high}]"
+        for key, value, (low, high) in checks
+        if not (math.isfinite(value) and low <= value <= high)
+    ]
+    if not s.host.strip():
+        problems.insert(0, "host is empty: set it to the controller's address")
+    if not problems and s.stall_after_s >= s.call_timeout_s:
+        problems.append(f"stall_periods = {s.stall_periods} at {s.frequency_hz} Hz is "
+                        f"{s.stall_after_s:.3f} s, not shorter than call_timeout_s = "
+                        f"{s.call_timeout_s}: a stall would look like a slow call")
+    return problems

@@ -1,0 +1,126 @@
+"""UR status words and their meaning for warden: plain data, read by the driver, tested alone.
+
+Numbers from the UR RTDE guide (robot_mode, safety_status_bits, runtime_state) and from
+ur_rtde 1.6.5 (the client-side parameter ranges it enforces with ValueError).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from enum import IntEnum
+
+from assurance.reasons import ReasonCode
+
+
+class RobotMode(IntEnum):
+    NO_CONTROLLER = -1
+    DISCONNECTED = 0
+    CONFIRM_SAFETY = 1
+    BOOTING = 2
+    POWER_OFF = 3
+    POWER_ON = 4
+    IDLE = 5
+    BACKDRIVE = 6
+    RUNNING = 7
+    UPDATING_FIRMWARE = 8
+
+
+class SafetyBit(IntEnum):
+    NORMAL = 0
+    REDUCED = 1
+    PROTECTIVE_STOP = 2
+    RECOVERY = 3
+    SAFEGUARD_STOP = 4
+    SYSTEM_EMERGENCY_STOP = 5
+    ROBOT_EMERGENCY_STOP = 6
+    EMERGENCY_STOP = 7
+    VIOLATION = 8
+    FAULT = 9
+    STOPPED_DUE_TO_SAFETY = 10
+
+
+class RuntimeState(IntEnum):
+    STOPPING = 0
+    STOPPED = 1
+    PLAYING = 2
+    PAUSING = 3
+    PAUSED = 4
+    RESUMING = 5
+
+
+E_STOP_BITS = (SafetyBit.SYSTEM_EMERGENCY_STOP, SafetyBit.ROBOT_EMERGENCY_STOP,
+               SafetyBit.EMERGENCY_STOP)
+"""Any of these: the arm is in an emergency stop (the CONTROLLER_STOP path with E_STOP)."""
+
+SAFETY_STOP_BITS = (SafetyBit.PROTECTIVE_STOP, SafetyBit.RECOVERY, SafetyBit.SAFEGUARD_STOP,
+                    SafetyBit.VIOLATION, SafetyBit.FAULT, SafetyBit.STOPPED_DUE_TO_SAFETY)
+"""Any of these: the safety system stopped the arm; it will not follow setpoints."""
+
+# ur_rtde 1.6.5 refuses values outside these ranges with ValueError before sending anything;
+# settings are checked against the same ranges so a manifest cannot get that far.
+LOOKAHEAD_RANGE_S = (0.03, 0.2)
+GAIN_RANGE = (100.0, 2000.0)
+JOINT_VELOCITY_RANGE = (0.0, 3.14)
+JOINT_ACCELERATION_RANGE = (0.0, 40.0)
+TOOL_ACCELERATION_RANGE = (0.0, 10.0)
+
+CONTROLLER_CYCLE_S = 0.002
+"""e-Series controller cycle; servoj's time argument must not be shorter."""
+MAX_RTDE_FREQUENCY_HZ = 500.0
+
+MIN_VERSION = (5, 4, 0)
+SUPPORTED_MAJOR = 5
+"""e-Series PolyScope 5.4+: 500 Hz RTDE and every register the control script uses. CB3 (3.x,
+125 Hz) and PolyScope X (10.x, no script port) are different protocols for this driver."""
+
+DOF = 6
+
+RECEIVE_VARIABLES = [
+    "timestamp", "actual_q", "actual_qd", "actual_TCP_force", "robot_mode",
+    "safety_status_bits", "runtime_state", "speed_scaling", "target_speed_fraction",
+]
+"""The RTDE outputs the driver subscribes to (a short recipe keeps every read cheap)."""
+
+
+def version_supported(version: tuple[int, ...]) -> bool:
+    return version[0] == SUPPORTED_MAJOR and tuple(version[:3]) >= MIN_VERSION
+
+
+@dataclass(frozen=True, slots=True)
+class Fault:
+    reason: ReasonCode
+    detail: str
+
+
+def _set_bits(word: int, bits: tuple[SafetyBit, ...]) -> list[str]:
+    return [bit.name for bit in bits if word >> bit & 1]
+
+
+def device_faults(safety_bits: int, robot_mode: int, runtime_state: int,
+                  streaming: bool) -> list[Fault]:
+    """What the status words say is wrong, most severe first.
+
+    Safety stops always count. Robot mode and program state count only while streaming:
+    an idle, connected arm with no program running is not at fault.
+    """
+    faults: list[Fault] = []
+    if e_stops := _set_bits(safety_bits, E_STOP_BITS):
+        faults.append(Fault(ReasonCode.E_STOP, "emergency stop: " + ", ".join(e_stops)))
+    if stops := _set_bits(safety_bits, SAFETY_STOP_BITS):
+        faults.append(Fault(ReasonCode.CONTROLLER_FAULT, "safety stop: " + ", ".join(stops)))
+    if streaming and robot_mode != RobotMode.RUNNING:
+        mode = _name(RobotMode, robot_mode)
+        faults.append(Fault(ReasonCode.CONTROLLER_FAULT, f"robot mode {mode}"))
+    if streaming and runtime_state != RuntimeState.PLAYING:
+        faults.append(Fault(
+            ReasonCode.CONTROLLER_FAULT,
+            f"control script not running (runtime state {_name(RuntimeState, runtime_state)})",
+        ))
+    return faults
+
+
+def _name(kind: type[IntEnum], value: int) -> str:
+    try:
+        return kind(value).name
+    except ValueError:
+        return str(value)

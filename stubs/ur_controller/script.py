@@ -1,0 +1,144 @@
+"""The controller side of ur_rtde's uploaded ``rtde_control`` URScript program.
+
+ur_rtde 1.6.5 uploads a ~42 KB program to port 30003 and then talks to it only through RTDE
+registers. We do not interpret URScript; we run the same state machine that program runs
+(its "Main loop" and ``process_cmd``), once per controller cycle, exactly like its ``sync()``:
+
+- ``output_int_register_0`` = 1 "ready", 2 "done with command";
+- ``input_int_register_0`` = the command id; 0 means "idle, ready for the next one";
+- real-time commands (servoJ 11, speedJ 9, ...) are processed every cycle and answer "ready";
+- every other command is processed once, answers "done", and waits for the client to write 0.
+
+Registers are offset by 24 when the client asked for the upper range; the offset is read from
+the uploaded program text, where ur_rtde injects it.
+"""
+
+from __future__ import annotations
+
+import re
+import sys
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from stubs.plant.base import Plant
+from stubs.ur_controller.status import ControllerStatus, RegisterBank, RuntimeState
+
+# The command ids of rtde_control.script (ur_rtde 1.6.5, "RTDE Control Script Loaded
+# (14.02.2024-12:23)").
+MOVEJ, SPEEDJ, SERVOJ = 1, 9, 11
+SPEED_STOP, SERVO_STOP, STOPL, STOPJ, STOP_SCRIPT = 15, 16, 33, 34, 255
+REALTIME_COMMANDS = frozenset({24, 11, 9, 10, 6, 25, 26, 27, 38, 58, 66, 67, 68, 69, 70, 71})
+READY, DONE = 1, 2
+ARRIVED_RAD = 1e-3
+
+_OFFSET = re.compile(r"reg_offset_(int|float)\s*=\s*(?:#[^\n]*\n)?\s*(\d+)")
+
+
+@dataclass(frozen=True, slots=True)
+class Offsets:
+    int_offset: int = 0
+    float_offset: int = 0
+
+
+def parse_offsets(program: str) -> Offsets:
+    """The register offsets ur_rtde injected into the program (0, or 24 for the upper range)."""
+    found = {kind: int(value) for kind, value in _OFFSET.findall(program)}
+    return Offsets(found.get("int", 0), found.get("float", 0))
+
+
+class ControlScript:
+    """One running instance of ``rtde_control``; ``step`` is one ``sync()`` of its main loop."""
+
+    def __init__(self, status: ControllerStatus, registers: RegisterBank, plant: Plant) -> None:
+        self.status = status
+        self.registers = registers
+        self.plant = plant
+        self.offsets = Offsets()
+        self._executing = False
+        self._blocking_until: Callable[[], bool] | None = None
+        self.servo: dict[str, float] = {}
+        """The last servoJ timing parameters (t, lookahead_time, gain), as the script keeps them."""
+        self._by_command: dict[int, Callable[[], None]] = {
+            MOVEJ: self._move_j,
+            SPEEDJ: lambda: self.plant.command_velocity(self._doubles(0, 6)),
+            SERVOJ: self._servo_j,
+            SPEED_STOP: self.plant.hold,
+            SERVO_STOP: self.plant.hold,
+            STOPL: self.plant.hold,
+            STOPJ: self.plant.hold,
+            STOP_SCRIPT: self.stop,
+        }
+
+    def load(self, program: str) -> None:
+        """A new program replaces the running one and starts PLAYING (as on the controller)."""
+        self.offsets = parse_offsets(program)
+        self._executing = False
+        self._blocking_until = None
+        self.status.runtime_state = RuntimeState.PLAYING
+        self._write_out(2, 1 << 16)  # reset_async_progress(): first write, no operation running
+        self._write_out(0, READY)
+
+    def stop(self) -> None:
+        """The program ends (stop script, dashboard "stop", or a safety stop)."""
+        self.status.runtime_state = RuntimeState.STOPPED
+        self._blocking_until = None
+        self.plant.hold()
+
+    def step(self) -> None:
+        if not self.status.program_running:
+            return
+        if self._blocking_until is not None:
+            self._finish_blocking_command()
+            return
+        command = self.registers.int_in(0, self.offsets.int_offset)
+        if command in REALTIME_COMMANDS:
+            self._process(command)
+            self._write_out(0, READY)
+        elif command == 0:
+            self._executing = False
+            self._write_out(0, READY)
+        elif not self._executing:
+            self._executing = True
+            self._process(command)
+            if self._blocking_until is None:
+                self._signal_done(command)
+
+    def _finish_blocking_command(self) -> None:
+        if self._blocking_until is not None and self._blocking_until():
+            self._blocking_until = None
+            self._write_out(0, DONE)
+
+    def _signal_done(self, command: int) -> None:
+        if command != STOP_SCRIPT and self.status.program_running:
+            self._write_out(0, DONE)
+
+    def _process(self, command: int) -> None:
+        handler = self._by_command.get(command)
+        if handler is None:
+            print(f"ur_controller: rtde_control command {command} not emulated", file=sys.stderr)
+            return
+        handler()
+
+    def _servo_j(self) -> None:
+        # Registers 6/7 (speed, acceleration) are unused by servoj, as on the real controller.
+        t, lookahead, gain = self._doubles(8, 3)
+        self.servo = {"t": t, "lookahead_time": lookahead, "gain": gain}
+        self.plant.command_position(self._doubles(0, 6))
+
+    def _move_j(self) -> None:
+        target = self._doubles(0, 6)
+        self.plant.command_position(target)
+        if self.registers.int_in(1, self.offsets.int_offset) != 1:  # synchronous moveJ
+            self._blocking_until = lambda: _arrived(self.plant, target)
+
+    def _doubles(self, first: int, count: int) -> list[float]:
+        offset = self.offsets.float_offset
+        return [self.registers.double_in(first + i, offset) for i in range(count)]
+
+    def _write_out(self, index: int, value: int) -> None:
+        self.registers.set_int_out(index, self.offsets.int_offset, value)
+
+
+def _arrived(plant: Plant, target: list[float]) -> bool:
+    q = plant.state().q
+    return max(abs(a - b) for a, b in zip(q, target, strict=True)) < ARRIVED_RAD
