@@ -1,40 +1,47 @@
-"""One dedicated thread per device for blocking SDK calls, with a deadline on every call."""
+"""One dedicated thread per device for blocking SDK calls, with a deadline on every call.
+
+A vendor port is rarely thread-safe, so all calls for one device run in order on a single
+worker. The worker is a daemon thread fed by a queue; a result comes back to the event loop
+with one ``call_soon_threadsafe`` (cheaper than an executor future, and the hand-off is most of
+a driver call's cost). A call that exceeds its deadline raises :class:`DriverTimeout`; the
+worker may still be stuck inside the SDK, so the caller must treat the device as faulted. The
+thread is a daemon: a call abandoned inside an SDK never blocks interpreter exit.
+"""
 
 from __future__ import annotations
 
 import asyncio
-import functools
+import queue
+import threading
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
-from typing import TypeVar
+from typing import Any, TypeVar
 
 from drivers.base import DriverTimeout
 
 T = TypeVar("T")
+_STOP = object()
 
 
 class DeviceThread:
-    """Runs blocking calls for one device, in order, on its own thread.
-
-    A vendor port is rarely thread-safe, so all calls for one device share a single worker.
-    A call that exceeds its deadline raises :class:`DriverTimeout`; the worker may still be
-    blocked inside the SDK, so the caller must treat the device as faulted.
-    """
-
     def __init__(self, device: str) -> None:
         self.device = device
-        self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix=f"dev-{device}")
+        self._queue: queue.SimpleQueue[Any] = queue.SimpleQueue()
         self._closed = False
+        self._thread = threading.Thread(target=self._work, name=f"dev-{device}", daemon=True)
+        self._thread.start()
 
     async def run(self, timeout_s: float, fn: Callable[..., T], *args: object) -> T:
         if self._closed:
             raise RuntimeError(f"{self.device}: device thread is closed")
         loop = asyncio.get_running_loop()
-        future = loop.run_in_executor(self._executor, functools.partial(fn, *args))
+        future: asyncio.Future[T] = loop.create_future()
+        self._queue.put((fn, args, future, loop))
         try:
-            async with asyncio.timeout(timeout_s):
+            async with asyncio.timeout(timeout_s) as deadline:
                 return await future
         except TimeoutError:
+            if not deadline.expired():
+                raise  # the call itself raised a TimeoutError: keep its own message
             name = getattr(fn, "__name__", "call")
             raise DriverTimeout(self.device, f"{name} took longer than {timeout_s:.3f} s") from None
 
@@ -42,4 +49,33 @@ class DeviceThread:
         """Stop accepting calls; a call stuck in the SDK is abandoned, not waited for."""
         if not self._closed:
             self._closed = True
-            self._executor.shutdown(wait=False, cancel_futures=True)
+            self._queue.put(_STOP)
+
+    def _work(self) -> None:
+        while True:
+            item = self._queue.get()
+            if item is _STOP:
+                return
+            fn, args, future, loop = item
+            try:
+                result = fn(*args)
+            except BaseException as error:  # delivered to the awaiting coroutine, not lost
+                _deliver(loop, future, error=error)
+            else:
+                _deliver(loop, future, result=result)
+
+
+def _deliver(loop: asyncio.AbstractEventLoop, future: asyncio.Future[Any], *,
+             result: Any = None, error: BaseException | None = None) -> None:
+    def settle() -> None:
+        if future.done():  # the caller gave up (deadline or cancellation)
+            return
+        if error is not None:
+            future.set_exception(error)
+        else:
+            future.set_result(result)
+
+    try:
+        loop.call_soon_threadsafe(settle)
+    except RuntimeError:
+        pass  # the loop is closed: nobody is waiting any more

@@ -55,8 +55,19 @@ async def arm(shared_arm: ManagedDriver, emulator: EmulatedController
     assert shared_arm.state is DriverState.ACTIVE, shared_arm.fault_detail
     emulator.clear()
     await shared_arm.hold()
-    await asyncio.sleep(0.05)  # let the arm settle on the held position
+    await _until_still(shared_arm)
     yield shared_arm
+
+
+async def _until_still(driver: ManagedDriver, timeout_s: float = 2.0) -> None:
+    """Wait until the held arm has stopped moving (on a loaded machine this can take a while)."""
+    previous = np.array((await driver.read()).q)
+    for _ in range(int(timeout_s / 0.02)):
+        await asyncio.sleep(0.02)
+        current = np.array((await driver.read()).q)
+        if np.abs(current - previous).max() < 1e-5:
+            return
+        previous = current
 
 
 on_shared_loop = pytest.mark.asyncio(loop_scope="module")
