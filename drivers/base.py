@@ -38,6 +38,9 @@ class CommandKind(StrEnum):
     """Hold the joints where they are now, with the device's own position loop."""
     STOP = "stop"
     """Decelerate to standstill and stop streaming (stopJ, quick stop, torque kept on)."""
+    IMPEDANCE = "impedance"
+    """Compliant joint-space target with per-joint stiffness and damping (the contact owner).
+    A driver that cannot do it refuses the command (CONTROLLER_MODE_MISMATCH)."""
 
 
 class StateSample(msgspec.Struct, frozen=True, kw_only=True):
@@ -60,7 +63,10 @@ class Command(msgspec.Struct, frozen=True, kw_only=True):
     kind: CommandKind
     q: tuple[float, ...] = ()
     qd: tuple[float, ...] = ()
+    stiffness: tuple[float, ...] = ()
+    damping: tuple[float, ...] = ()
     gripper: float | None = None
+    """Gripper opening in metres; None leaves the gripper as it is."""
     seq: int = 0
 
 

@@ -1,6 +1,8 @@
 """The ``warden`` command line.
 
     warden replay SCENARIO [--out FILE] [--pretty] [--check]
+    warden run [MANIFEST] [--cycles N] [--clock wall|virtual] [--json FILE]
+    warden serve-policy [server options]
 
 Exit codes: 0 the command ran (a refused chunk is a result, not an error); 1 ``--check`` found
 a broken expectation; 2 invalid input (the message names the file, the place and the field).
@@ -14,6 +16,7 @@ from collections.abc import Sequence
 
 import msgspec
 
+from kernel.cli_run import add_commands
 from kernel.core.lines import encode
 from kernel.replay import as_dict, check_expectations, replay
 from kernel.scenario import ScenarioError, load_scenario
@@ -51,6 +54,7 @@ def _parser() -> argparse.ArgumentParser:
     rep.add_argument("--check", action="store_true",
                      help="verify the scenario's 'expect'/'forbid' matchers (exit 1 if broken)")
     rep.set_defaults(handler=_replay)
+    add_commands(commands)
     return parser
 
 

@@ -48,7 +48,7 @@ SCENARIO_SECTIONS: dict[str, frozenset[str] | None] = {
 }
 PHASE_KEYS = frozenset({"max_observation_age_ms", "max_action_age_ms", "max_divergence",
                         "max_projection", "trim", "blend", "force_band", "ood_threshold",
-                        "controller_mode", "max_underrun_ms", "executor"})
+                        "controller_mode", "max_underrun_ms", "executor", "proposals"})
 
 
 @dataclass(frozen=True, slots=True)

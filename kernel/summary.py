@@ -54,6 +54,10 @@ class RunSummary:
     _phase: str = "IDLE"
     _pending: list[dict[str, Any]] = field(default_factory=list)
 
+    def observe_all(self, lines: list[Line]) -> None:
+        for line in lines:
+            self.observe(line)
+
     def observe(self, line: Line) -> None:
         if isinstance(line, TickLine):
             self._tick(line)

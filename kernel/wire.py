@@ -249,7 +249,7 @@ def payload_vector(payload: ArrayPayload, length: int | None = None) -> np.ndarr
     """A 1-D float64 vector from a payload; a wrong dtype, shape or size is a violation."""
     try:
         dtype = np.dtype(payload.dtype)
-    except TypeError as error:
+    except (TypeError, ValueError, SyntaxError) as error:  # numpy parses dtype text itself
         raise ProtocolViolation(f"unknown dtype {payload.dtype!r}") from error
     if dtype.kind != "f" or len(payload.shape) != 1:
         raise ProtocolViolation("a state vector must be a 1-D float array")

@@ -54,9 +54,13 @@ class PhaseCard:
     proposal_owner: str = ""
     approval_owner: str = ""
     fallback: str = ""
+    proposals: bool | None = None
+    """Whether learned chunks are admitted in this phase; None: the executor decides."""
 
     @property
     def takes_proposals(self) -> bool:
+        if self.proposals is not None:
+            return self.proposals
         return self.executor in (Executor.POLICY, Executor.CONTACT)
 
 
@@ -98,8 +102,9 @@ class PhaseBook:
 
     @staticmethod
     def make_card(
-        phase: TaskPhase, policy: PhasePolicy, executor: Executor | None = None
+        phase: TaskPhase, policy: PhasePolicy, executor: Executor | None = None,
+        proposals: bool | None = None,
     ) -> PhaseCard:
         proposal, approval, fallback = _DESCRIPTIONS.get(phase, ("", "", ""))
         return PhaseCard(phase, executor or DEFAULT_EXECUTORS[phase], policy, proposal,
-                         approval, fallback)
+                         approval, fallback, proposals)

@@ -106,6 +106,8 @@ class SimDriver:
     def _apply(self, command: Command, q: tuple[float, ...]) -> None:
         if command.kind is CommandKind.POSITION:
             self.plant.command_position(q)
+        elif command.kind is CommandKind.IMPEDANCE:
+            self.plant.command_impedance(q, command.stiffness, command.damping)
         elif command.kind is CommandKind.VELOCITY:
             self.plant.command_velocity(command.qd)
         else:  # HOLD and STOP both bring the plant to rest where it is

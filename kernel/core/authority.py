@@ -105,6 +105,7 @@ def on_link(state: CoreState, event: LinkEvent) -> None:
 def on_handshake(state: CoreState, event: HandshakeEvent) -> None:
     hello = state.config.client.hello(state.epoch)
     decision, session = evaluate(hello, event.offer, state.config.allowlist)
+    replaced_a_session = state.session is not None
     state.link_up = True
     state.emit(HandshakeLine(
         t=state.t_ms, decision=decision.decision, fingerprint=decision.fingerprint,
@@ -117,8 +118,8 @@ def on_handshake(state: CoreState, event: HandshakeEvent) -> None:
     if state.fallback.mode is Mode.DEGRADED:
         state.log_task(state.task.begin_validation(R.HANDSHAKE_ACCEPTED))
         validate(state)
-    elif state.fallback.mode is Mode.RUNNING:
-        state.new_epoch(R.HANDSHAKE_ACCEPTED)  # a new session is a reconnection: new epoch
+    elif state.fallback.mode is Mode.RUNNING and replaced_a_session:
+        state.new_epoch(R.HANDSHAKE_ACCEPTED)  # a second session is a reconnection: new epoch
 
 
 def _rejected(state: CoreState, reasons: tuple[str, ...]) -> None:

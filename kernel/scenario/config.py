@@ -142,7 +142,8 @@ def _phases(doc: Mapping[str, Any], where: Where) -> PhaseBook:
         executor = body.get("executor")
         if executor is not None:
             executor = Executor(choice(body, "executor", here, tuple(Executor)))
-        cards[phase] = PhaseBook.make_card(phase, phase_policy(body, here), executor)
+        proposals = flag(body, "proposals", here, True) if "proposals" in body else None
+        cards[phase] = PhaseBook.make_card(phase, phase_policy(body, here), executor, proposals)
     return PhaseBook(cards)
 
 

@@ -1,13 +1,15 @@
 """Reading a scenario (one JSON document) or a run journal (JSON lines) from disk.
 
 A scenario has ``"format": "warden-scenario/1"`` and its control ticks are generated every
-``control_period_ms`` from 0 to ``until``. A journal's first line is the same header with
-``"format": "warden-journal/1"``; every further line is one event, and its ticks are recorded
-events, so a replay runs exactly the ticks the live run ran.
+``control_period_ms`` from 0 to ``until``; it starts as if its session had just been accepted.
+A journal's first line is the same header with ``"format": "warden-journal/1"``; every further
+line is one event, its ticks are recorded events (a replay runs exactly the ticks the live run
+ran), and it starts with no accepted session, as a live run does: the handshake is in it.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -89,6 +91,8 @@ def _scenario(doc: Any, journal_events: list[Any] | None, name: str) -> Scenario
         raise where.at("format").error(
             f"unknown format {fmt!r} (expected {SCENARIO_FORMAT!r} or {JOURNAL_FORMAT!r})")
     config = build_config(doc, where)
+    if fmt == JOURNAL_FORMAT:  # a live run starts unconnected: its journal records the handshake
+        config = dataclasses.replace(config, initial_session=None)
     raw_events = journal_events if journal_events is not None else doc.get("events")
     if raw_events is None:
         raise where.error("missing required key 'events'")

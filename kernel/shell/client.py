@@ -6,7 +6,7 @@ through a :class:`Gateway` the shell implements: the client turns frames into ev
 core's answer decides what happens next (only its ``ACCEPT`` opens a session; its chunk lines
 are the admissions). Per connection: clock-sync burst, Hello, Offer → core → Decision, then
 observations on request, chunks in, heartbeats both ways. Any end of a connection feeds
-``ev.LinkEvent(down)``; the client reconnects with bounded exponential backoff and always
+``LinkEvent(down)``; the client reconnects with bounded exponential backoff and always
 handshakes again, with the epoch the core started at the link loss.
 
 Expected failures (refused connections, closed sockets, protocol violations, silence, a
@@ -20,128 +20,38 @@ import asyncio
 import contextlib
 import itertools
 import time
-import uuid
 from collections.abc import Iterable
-from dataclasses import asdict, dataclass, field
-from enum import StrEnum
-from typing import Protocol
+from dataclasses import dataclass
 
 import msgspec
-import numpy as np
 from websockets.asyncio.client import ClientConnection, connect
 from websockets.exceptions import ConnectionClosed, InvalidHandshake
 
 from assurance.envelope import MalformedChunk, decode_wire_chunk
-from assurance.handshake import ClientHello, HandshakeDecision
+from assurance.handshake import HandshakeDecision
 from kernel import wire
 from kernel.core import events as ev
 from kernel.core.lines import ChunkLine, HandshakeLine, Line, RequestLine, TransitionLine
+from kernel.shell.link_types import (
+    ClientConfig,
+    Gateway,
+    LinkCounters,
+    LinkState,
+)
 from kernel.wire import ByeReason, ClockSample, Frame, Message, MessageType, ProtocolViolation
 
 ADMITTED = frozenset({"accepted", "trimmed", "replaced", "blended"})
 _CLOSE_TOO_BIG = 1009
 
 
-@dataclass(frozen=True, slots=True)
-class RobotSample:
-    """What the robot measures when an observation is captured (no goal, no hint)."""
-
-    q: np.ndarray
-    task_phase: str
-    qd: np.ndarray | None = None
-    wrench: np.ndarray | None = None
-    gripper: float | None = None
-
-
-class Gateway(Protocol):
-    """The shell object that owns the core and the robot state.
-
-    ``now_ns``: the client's monotonic clock, the core's time base. ``feed``: apply one event
-    to the core, return the lines it produced. ``client_side_hello``: this client's handshake
-    side with the core's current queue epoch. ``capture_observation``: the robot, measured now.
-    """
-
-    def now_ns(self) -> int: ...
-
-    def feed(self, event: ev.Event) -> list[Line]: ...
-
-    def client_side_hello(self) -> ClientHello: ...
-
-    def capture_observation(self) -> RobotSample: ...
-
-
-@dataclass(frozen=True, slots=True)
-class ClientConfig:
-    url: str
-    client_id: str = field(default_factory=lambda: f"warden-{uuid.uuid4().hex[:8]}")
-    protocol: tuple[int, int] = wire.PROTOCOL_RANGE
-    max_frame_bytes: int = wire.MAX_FRAME_BYTES
-    heartbeat_interval_s: float = 0.2
-    heartbeat_timeout_s: float = 1.0
-    handshake_timeout_s: float = 5.0
-    open_timeout_s: float = 5.0
-    close_timeout_s: float = 1.0
-    clock_burst: int = 8
-    clock_refresh_s: float = 10.0
-    clock_ping_timeout_s: float = 1.0
-    backoff_initial_s: float = 0.05
-    backoff_max_s: float = 2.0
-
-    def __post_init__(self) -> None:
-        if self.clock_burst < 1:
-            raise ValueError("clock_burst must be at least 1")
-        if not 0 < self.heartbeat_interval_s < self.heartbeat_timeout_s:
-            raise ValueError("need 0 < heartbeat_interval_s < heartbeat_timeout_s")
-        if not 0 < self.backoff_initial_s <= self.backoff_max_s:
-            raise ValueError("need 0 < backoff_initial_s <= backoff_max_s")
-
-
-@dataclass(slots=True)
-class LinkCounters:
-    connects: int = 0
-    connect_failures: int = 0
-    reconnects: int = 0
-    frames_in: int = 0
-    frames_out: int = 0
-    bytes_in: int = 0
-    bytes_out: int = 0
-    handshakes_accepted: int = 0
-    handshakes_rejected: int = 0
-    chunks_in: int = 0
-    chunks_admitted: int = 0
-    chunks_refused: int = 0
-    malformed: int = 0
-    observations_sent: int = 0
-    clock_round_trips: int = 0
-    clock_syncs: int = 0
-    heartbeat_misses: int = 0
-    link_timeouts: int = 0
-    protocol_violations: int = 0
-    oversized: int = 0
-    byes_sent: int = 0
-    byes_received: int = 0
-
-    def snapshot(self) -> dict[str, int]:
-        return asdict(self)
-
-
-class LinkState(StrEnum):
-    IDLE = "idle"
-    CONNECTING = "connecting"
-    HANDSHAKING = "handshaking"
-    ACCEPTED = "accepted"
-    CLOSING = "closing"
-    BACKOFF = "backoff"
-    STOPPED = "stopped"
-
-
 class _LinkEnded(Exception):
     """This connection is over; ``bye`` is what to tell the peer (None: nothing to say)."""
 
-    def __init__(self, bye: ByeReason | None, detail: str) -> None:
+    def __init__(self, bye: ByeReason | None, detail: str, oversized: bool = False) -> None:
         super().__init__(detail)
         self.bye = bye
         self.detail = detail
+        self.oversized = oversized
 
 
 @dataclass(slots=True, eq=False)
@@ -153,8 +63,9 @@ class _Link:
     offer: asyncio.Future[wire.Offer]
     accepted: bool = False
     version: int | None = None
-    pongs: dict[int, asyncio.Future[tuple[int, int]]] = field(default_factory=dict)
-    ping_seq: itertools.count[int] = field(default_factory=lambda: itertools.count(1))
+    pong: asyncio.Future[tuple[int, int]] | None = None
+    """The answer to the one ping in flight (pings of a burst go one at a time)."""
+    ping_seq: int = 0
 
 
 class RobotClient:
@@ -250,6 +161,7 @@ class RobotClient:
 
     async def _finish(self, link: _Link, ended: _LinkEnded) -> None:
         self.state = LinkState.CLOSING
+        self.counters.oversized += ended.oversized  # counted here: once per connection
         if ended.bye is not None:
             with contextlib.suppress(ConnectionClosed):
                 bye = wire.Bye(reason=ended.bye, detail=ended.detail[:120])
@@ -286,8 +198,9 @@ class RobotClient:
 
     async def _decide(self, link: _Link, offer: wire.Offer) -> None:
         """The core decides; the client only carries its decision back to the server."""
+        self._wanted.clear()  # requests made before this handshake are not for its session
         lines = self._feed(ev.HandshakeEvent(t=self._gateway.now_ns(),
-                                          offer=msgspec.to_builtins(offer.offer)))
+                                             offer=msgspec.to_builtins(offer.offer)))
         verdict = next((line for line in lines if isinstance(line, HandshakeLine)), None)
         if verdict is None:
             raise RuntimeError("the core answered a handshake without a handshake line")
@@ -301,7 +214,6 @@ class RobotClient:
         self.counters.handshakes_accepted += 1
         link.accepted, link.version = True, verdict.protocol
         self.fingerprint, self.protocol = verdict.fingerprint, verdict.protocol
-        self._wanted.clear()  # requests made before this session are not for it
         self.state = LinkState.ACCEPTED
         await self._report_clock(link)
 
@@ -315,7 +227,7 @@ class RobotClient:
         self.clock = best
         self.counters.clock_syncs += 1
         self._feed(ev.ClockSyncEvent(t=self._gateway.now_ns(), domain=wire.SERVER_CLOCK_DOMAIN,
-                                  offset=best.offset, round_trip=best.round_trip))
+                                     offset=best.offset, round_trip=best.round_trip))
 
     async def _report_clock(self, link: _Link) -> None:
         if link.version is not None and link.version >= 2 and self.clock is not None:
@@ -323,18 +235,17 @@ class RobotClient:
                                                     round_trip=self.clock.round_trip))
 
     async def _ping(self, link: _Link) -> ClockSample:
-        seq = next(link.ping_seq)
-        answer = asyncio.get_running_loop().create_future()
-        link.pongs[seq] = answer
+        link.ping_seq += 1
+        link.pong = answer = asyncio.get_running_loop().create_future()
         t0 = self._gateway.now_ns()
         try:
-            await self._send(link, wire.ClockPing(seq=seq, t0=t0))
+            await self._send(link, wire.ClockPing(seq=link.ping_seq, t0=t0))
             async with asyncio.timeout(self.config.clock_ping_timeout_s):
                 t_server, t1 = await answer
         except TimeoutError as error:
             raise _LinkEnded(ByeReason.CLOCK_TIMEOUT, "clock ping unanswered") from error
         finally:
-            link.pongs.pop(seq, None)
+            link.pong = None
         self.counters.clock_round_trips += 1
         return ClockSample(t0=t0, t_server=t_server, t1=t1)
 
@@ -413,7 +324,7 @@ class RobotClient:
         chunk = decode_wire_chunk(frame.body, t_receive)
         if isinstance(chunk, MalformedChunk):
             self.counters.malformed += 1
-        for line in self._feed(ev.ChunkEvent(t_receive, chunk)):
+        for line in self._feed(ev.ChunkEvent(t_receive, chunk, bytes(frame.body))):
             if isinstance(line, ChunkLine):
                 admitted = line.decision in ADMITTED
                 self._healthy |= admitted
@@ -421,10 +332,9 @@ class RobotClient:
                 self.counters.chunks_refused += not admitted
 
     def _on_pong(self, link: _Link, pong: wire.ClockPong, t_receive: int) -> None:
-        waiter = link.pongs.get(pong.seq)
-        if waiter is None or waiter.done():
-            return  # a pong that arrives after its ping timed out carries no usable sample
-        waiter.set_result((pong.t_server, t_receive))
+        # a pong for a ping that already timed out carries no usable sample: dropped
+        if link.pong is not None and pong.seq == link.ping_seq and not link.pong.done():
+            link.pong.set_result((pong.t_server, t_receive))
 
     # -- helpers ---------------------------------------------------------------------------
 
@@ -442,10 +352,10 @@ class RobotClient:
         self.counters.frames_out += 1
         self.counters.bytes_out += len(data)
 
-    def _closed(self, error: ConnectionClosed) -> _LinkEnded:
+    @staticmethod
+    def _closed(error: ConnectionClosed) -> _LinkEnded:
         if error.sent is not None and error.sent.code == _CLOSE_TOO_BIG:
-            self.counters.oversized += 1
-            return _LinkEnded(None, "frame over the size limit")
+            return _LinkEnded(None, "frame over the size limit", oversized=True)
         return _LinkEnded(None, f"connection closed ({error})")
 
     def _report_link(self, up: bool) -> None:

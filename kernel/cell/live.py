@@ -1,0 +1,138 @@
+"""The cell on the wall clock: a kernel timer paces the control loop, the policy server runs as
+a separate process on loopback, and the policy link talks to it over a real websocket.
+
+Tasks live in one supervisor: the recorder and the control loop are critical (their failure
+ends the run, after the arm is held), the policy link is not (a crash is a lost link: the core
+degrades, the link is restarted and must handshake again).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import gc
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import structlog
+
+from kernel.cell.build import POLICY_ACCELERATION, POLICY_SPEED, offer_for
+from kernel.cell.report import CycleProgress
+from kernel.cell.session import RunContext, bring_up, finish, open_run, report_progress
+from kernel.manifest import Manifest
+from kernel.shell.client import RobotClient
+from kernel.shell.link_types import ClientConfig
+from kernel.shell.realtime import restore, try_realtime
+from kernel.shell.supervisor import RestartPolicy, Supervisor
+from kernel.shell.timer import MonotonicClock, PeriodicTimer
+from stubs.process import EmulatorProcess
+
+log = structlog.get_logger("warden.run")
+EARLY_WAKE_NS = 200_000
+"""Wake this long before each deadline and spin the rest (see notes/loop-timing.md)."""
+
+
+async def run_live(manifest: Manifest, journal_dir: Path | None,
+                   progress: CycleProgress | None = None) -> dict[str, Any]:
+    context = open_run(manifest, MonotonicClock(), journal_dir, progress)
+    server = _policy_server(manifest, context.cell.policy_goal)
+    realtime = try_realtime()
+    log.info("scheduling", detail=realtime.summary())
+    failures: list[str] = []
+    try:
+        client = RobotClient(ClientConfig(url=_url(manifest, server)), context.cell.gateway)
+        context.cell.gateway.listeners.append(client.notify)
+        await _supervise(context, client, progress, failures)
+    finally:
+        await context.cell.driver.aclose()
+        restore(realtime)
+        if server is not None:
+            server.stop()
+        context.recorder.flush()
+        context.files.close()
+    return finish(context, {
+        "clock": "wall", "timed_out": not context.cell.controller.finished,
+        "task_failures": failures, "loop": {"realtime": realtime.summary()},
+        "link": {k: v for k, v in client.counters.snapshot().items() if v},
+    })
+
+
+async def _supervise(context: RunContext, client: RobotClient,
+                     progress: CycleProgress | None, failures: list[str]) -> None:
+    def failed(name: str, error: BaseException) -> None:
+        failures.append(f"{name}: {type(error).__name__}")
+        log.error("task failed", task=name, error=type(error).__name__)
+
+    done = asyncio.Event()
+
+    async def link(started) -> None:  # type: ignore[no-untyped-def]
+        started()
+        await client.run()
+
+    async def control(started) -> None:  # type: ignore[no-untyped-def]
+        await bring_up(context)
+        # Everything allocated so far lives for the whole run: keep it out of the collector's
+        # way, so a full collection does not pause the control loop for 100 ms.
+        gc.collect()
+        gc.freeze()
+        started()
+        try:
+            await _control_loop(context, progress)
+        finally:
+            done.set()
+
+    async with Supervisor(on_failure=failed) as supervisor:
+        await supervisor.start("recorder", context.recorder.run, critical=True)
+        await supervisor.start("policy-link", link, critical=False,
+                               restart=RestartPolicy(max_restarts=10))
+        await supervisor.start("control", control, critical=True)
+        await done.wait()
+        client.stop()
+        await supervisor.shutdown()
+
+
+async def _control_loop(context: RunContext, progress: CycleProgress | None) -> None:
+    manifest, cell = context.manifest, context.cell
+    period = manifest.core.control_period_ns
+    budget_ns = round(manifest.cell.cycle_timeout_s * 1e9) * manifest.cell.cycles
+    cell.controller.start()
+    async with PeriodicTimer(period, early_ns=EARLY_WAKE_NS) as timer:
+        while not cell.controller.finished and cell.gateway.now_ns() < budget_ns:
+            tick = await timer.wait()
+            context.lateness_ns.append(tick.lateness_ns)
+            if tick.skipped or tick.lateness_ns > period // 2:
+                context.misses += max(1, tick.skipped)
+            await cell.controller.tick()
+            report_progress(context, progress)
+
+
+def _policy_server(manifest: Manifest, goal: np.ndarray) -> EmulatorProcess | None:
+    settings = manifest.policy
+    if not settings.launch:
+        return None
+    offer = offer_for(manifest)
+    args = [
+        "--host", settings.host, "--port", str(settings.port),
+        "--goal", ",".join(f"{v:.9f}" for v in goal), "--max-speed", str(POLICY_SPEED),
+        "--max-acceleration", str(POLICY_ACCELERATION),
+        "--noise", str(settings.noise_rad), "--horizon", str(settings.chunk_horizon),
+        "--action-dt-ms", str(settings.action_dt_ms),
+        "--latency-median-ms", str(settings.latency_median_ms),
+        "--latency-p95-ms", str(settings.latency_p95_ms),
+        "--clock-offset-ms", str(settings.clock_offset_ms), "--seed", str(manifest.cell.seed),
+        "--checkpoint", offer.policy_checkpoint, "--config-hash", offer.config_hash,
+        "--observation-keys", ",".join(offer.observation_keys),
+        "--action-dim", str(offer.action_dim), "--action-units", offer.action_units,
+        "--action-frame", offer.action_frame, "--skill", offer.skill or "",
+        "--skill-version", offer.skill_version or "",
+        "--controller-mode", offer.controller_mode or "",
+        "--calibration-epoch", str(offer.calibration_epoch),
+        "--protocol", f"{offer.protocol[0]},{offer.protocol[1]}",
+        "--replacement-policy", "blend",
+    ]
+    return EmulatorProcess("stubs.policy_server", *args).start()
+
+
+def _url(manifest: Manifest, server: EmulatorProcess | None) -> str:
+    port = server.info["port"] if server is not None else manifest.policy.port
+    return f"ws://{manifest.policy.host}:{port}"

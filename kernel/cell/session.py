@@ -1,0 +1,125 @@
+"""What every cell run shares, whichever clock paces it: files, summary, progress, bring-up.
+
+A run directory holds ``journal.jsonl`` (every event the core was fed; ``warden replay`` on it
+reproduces every decision) and ``decisions.jsonl`` (the decision log the live run produced),
+plus ``summary.json``.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO, Any
+
+from drivers.base import ControlConfig
+from kernel.cell.build import Cell, build_cell
+from kernel.cell.report import CycleProgress
+from kernel.journal import header
+from kernel.manifest import Manifest
+from kernel.shell.recorder import Recorder, open_run_files
+from kernel.shell.timer import Clock
+from kernel.summary import CycleResult, RunSummary, percentiles
+
+
+@dataclass
+class RunFiles:
+    directory: Path | None = None
+    journal: IO[str] | None = None
+    decisions: IO[bytes] | None = None
+
+    def close(self) -> None:
+        for stream in (self.journal, self.decisions):
+            if stream is not None:
+                stream.close()
+
+
+@dataclass
+class RunContext:
+    manifest: Manifest
+    cell: Cell
+    recorder: Recorder
+    files: RunFiles
+    summary: RunSummary = field(default_factory=RunSummary)
+    lateness_ns: list[int] = field(default_factory=list)
+    misses: int = 0
+
+
+def open_run(manifest: Manifest, clock: Clock, journal_dir: Path | None,
+             progress: CycleProgress | None) -> RunContext:
+    files = RunFiles()
+    if journal_dir is not None:
+        files.directory, files.journal, files.decisions = open_run_files(journal_dir,
+                                                                         manifest.name)
+    head = header({**manifest.sections, "session": {**manifest.sections["session"]}},
+                  manifest.name)
+    recorder = Recorder(files.journal, files.decisions, head)
+    cell = build_cell(manifest, clock, recorder)
+    context = RunContext(manifest, cell, recorder, files)
+    cell.gateway.listeners.append(context.summary.observe_all)
+    cell.controller.on_cycle = _on_cycle(context, progress)
+    return context
+
+
+def _on_cycle(context: RunContext, progress: CycleProgress | None):  # type: ignore[no-untyped-def]
+    def record(result: CycleResult) -> None:
+        context.summary.cycles.append(result)
+        if progress is not None:
+            progress.cycle_done(result)
+    return record
+
+
+async def bring_up(context: RunContext) -> None:
+    """Connect, configure and activate the driver; hold where the arm is."""
+    limits = context.manifest.core.limits
+    arm = limits.arm_mask
+    control = ControlConfig(
+        dof=int(arm.sum()), period_ns=context.manifest.core.control_period_ns,
+        q_lower=tuple(limits.lower[arm].tolist()), q_upper=tuple(limits.upper[arm].tolist()),
+        v_max=tuple(limits.velocity[arm].tolist()))
+    await context.cell.driver.configure(control)
+    await context.cell.driver.activate()
+
+
+def report_progress(context: RunContext, progress: CycleProgress | None) -> None:
+    if progress is None:
+        return
+    state = context.cell.core.state
+    controller = context.cell.controller
+    progress.update(min(len(controller.results) + 1, controller.cycles),
+                    str(context.cell.controller.runner.step), str(state.task.phase),
+                    str(state.fallback.mode))
+
+
+def finish(context: RunContext, extra: dict[str, Any]) -> dict[str, Any]:
+    """The summary as a dict; also written to the run directory."""
+    summary = context.summary
+    lateness = [n / 1000.0 for n in context.lateness_ns]
+    ticks = context.cell.controller.counters.ticks
+    summary.loop = {
+        "ticks": ticks, "misses": context.misses,
+        "miss_rate": context.misses / ticks if ticks else 0.0,
+        "lateness_us": _lateness(lateness), **extra.pop("loop", {}),
+    }
+    summary.extra.update(extra)
+    summary.extra["journal"] = {"directory": str(context.files.directory or "-"),
+                                "events": context.recorder.stats.events,
+                                "gaps": context.recorder.stats.gaps}
+    summary.extra["driver"] = {"refused_writes": context.cell.controller.counters.refused_writes,
+                               "faults": "; ".join(context.cell.controller.counters.driver_faults)
+                               or "none"}
+    data = summary.as_dict()
+    if context.files.directory is not None:
+        (context.files.directory / "summary.json").write_text(json.dumps(data, indent=1,
+                                                                         default=str))
+    return data
+
+
+def _lateness(values: list[float]) -> dict[str, float] | None:
+    if not values:
+        return None
+    stats = percentiles(values)
+    ordered = sorted(values)
+    stats["p99"] = ordered[min(len(ordered) - 1, int(0.99 * len(ordered)))]
+    stats["p999"] = ordered[min(len(ordered) - 1, int(0.999 * len(ordered)))]
+    return stats

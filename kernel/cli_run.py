@@ -1,0 +1,100 @@
+"""``warden run`` and ``warden serve-policy``."""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import dataclasses
+import json
+from pathlib import Path
+from typing import Any
+
+from kernel.manifest import ClockKind, Manifest, ManifestError, load_manifest
+
+REPO = Path(__file__).resolve().parents[1]
+DEFAULT_MANIFEST = REPO / "manifests" / "sim-ur5e.toml"
+
+
+def add_commands(commands: Any) -> None:
+    run = commands.add_parser(
+        "run", help="run the assembly cell described by a manifest",
+        description="Run the assembly cycle: plant or driver, policy server, runtime.")
+    run.add_argument("manifest", nargs="?", default=str(DEFAULT_MANIFEST),
+                     help="deployment manifest (TOML); default: the simulated UR5e cell")
+    run.add_argument("--cycles", type=int, help="assembly cycles to run (overrides the manifest)")
+    run.add_argument("--clock", choices=[c.value for c in ClockKind],
+                     help="wall: real time with the policy server on loopback; "
+                          "virtual: lockstep, fast and deterministic")
+    run.add_argument("--json", dest="json_out", metavar="FILE",
+                     help="also write the summary as JSON to FILE ('-' for stdout)")
+    run.add_argument("--journal-dir", help="where run directories go (default: the manifest's)")
+    run.add_argument("--no-journal", action="store_true", help="do not record a journal")
+    run.set_defaults(handler=run_command)
+    serve = commands.add_parser(
+        "serve-policy", help="run the reference policy server (scripted insertion policy)",
+        description="Arguments are those of `python -m stubs.policy_server --help`.",
+        add_help=False)
+    serve.add_argument("server_args", nargs=argparse.REMAINDER)
+    serve.set_defaults(handler=serve_command)
+
+
+def run_command(args: argparse.Namespace) -> int:
+    manifest = _with_overrides(load_manifest(args.manifest), args)
+    journal_dir = None if args.no_journal or not manifest.journal.enabled else Path(
+        args.journal_dir or manifest.journal.directory)
+    summary = asyncio.run(_run(manifest, journal_dir)) if manifest.cell.clock is (
+        ClockKind.VIRTUAL) else _run_wall(manifest, journal_dir)
+    _output(summary, args.json_out)
+    cycles = summary["cycles"]
+    return 0 if cycles["verified"] == cycles["attempted"] == manifest.cell.cycles else 1
+
+
+def _with_overrides(manifest: Manifest, args: argparse.Namespace) -> Manifest:
+    cell = manifest.cell
+    if args.cycles is not None:
+        if args.cycles < 1:
+            raise ManifestError("--cycles: must be at least 1")
+        cell = dataclasses.replace(cell, cycles=args.cycles)
+    if args.clock is not None:
+        cell = dataclasses.replace(cell, clock=ClockKind(args.clock))
+    return dataclasses.replace(manifest, cell=cell)
+
+
+async def _run(manifest: Manifest, journal_dir: Path | None) -> dict[str, Any]:
+    from kernel.cell.lockstep import run_lockstep
+    from kernel.cell.report import CycleProgress
+
+    with CycleProgress(manifest.cell.cycles) as progress:
+        return await run_lockstep(manifest, journal_dir, progress)
+
+
+def _run_wall(manifest: Manifest, journal_dir: Path | None) -> dict[str, Any]:
+    from kernel.cell.live import run_live
+    from kernel.cell.report import CycleProgress
+    from kernel.shell.loop import run
+
+    async def main() -> dict[str, Any]:
+        with CycleProgress(manifest.cell.cycles) as progress:
+            return await run_live(manifest, journal_dir, progress)
+
+    return run(main())
+
+
+def _output(summary: dict[str, Any], json_out: str | None) -> None:
+    from kernel.cell.report import render_summary
+
+    render_summary(summary)
+    if json_out == "-":
+        print(json.dumps(summary, indent=1, default=str))
+    elif json_out:
+        Path(json_out).write_text(json.dumps(summary, indent=1, default=str))
+
+
+def serve_command(args: argparse.Namespace) -> int:
+    from stubs.policy_server.__main__ import main
+
+    return main(args.server_args)
+
+
+__all__ = ["add_commands"]
+

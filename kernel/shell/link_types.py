@@ -1,0 +1,110 @@
+"""The policy link's public types: what the shell gives the client and what it reads back."""
+
+from __future__ import annotations
+
+import uuid
+from dataclasses import asdict, dataclass, field
+from enum import StrEnum
+from typing import Protocol
+
+import numpy as np
+
+from assurance.handshake import ClientHello
+from kernel import wire
+from kernel.core import events as ev
+from kernel.core.lines import Line
+
+
+@dataclass(frozen=True, slots=True)
+class RobotSample:
+    """What the robot measures when an observation is captured (no goal, no hint)."""
+
+    q: np.ndarray
+    task_phase: str
+    qd: np.ndarray | None = None
+    wrench: np.ndarray | None = None
+    gripper: float | None = None
+
+
+class Gateway(Protocol):
+    """The shell object that owns the core and the robot state.
+
+    ``now_ns``: the client's monotonic clock, the core's time base. ``feed``: apply one event
+    to the core, return the lines it produced. ``client_side_hello``: this client's handshake
+    side with the core's current queue epoch. ``capture_observation``: the robot, measured now.
+    """
+
+    def now_ns(self) -> int: ...
+
+    def feed(self, event: ev.Event) -> list[Line]: ...
+
+    def client_side_hello(self) -> ClientHello: ...
+
+    def capture_observation(self) -> RobotSample: ...
+
+
+@dataclass(frozen=True, slots=True)
+class ClientConfig:
+    url: str
+    client_id: str = field(default_factory=lambda: f"warden-{uuid.uuid4().hex[:8]}")
+    protocol: tuple[int, int] = wire.PROTOCOL_RANGE
+    max_frame_bytes: int = wire.MAX_FRAME_BYTES
+    heartbeat_interval_s: float = 0.1
+    heartbeat_timeout_s: float = 0.35
+    """Below the phases' underrun escalation, so a dead link is DEGRADED (a new handshake
+    recovers it) before a starved queue escalates to SAFE_HOLD (an operator must)."""
+    handshake_timeout_s: float = 5.0
+    open_timeout_s: float = 5.0
+    close_timeout_s: float = 1.0
+    clock_burst: int = 8
+    clock_refresh_s: float = 10.0
+    clock_ping_timeout_s: float = 1.0
+    backoff_initial_s: float = 0.05
+    backoff_max_s: float = 2.0
+
+    def __post_init__(self) -> None:
+        if self.clock_burst < 1:
+            raise ValueError("clock_burst must be at least 1")
+        if not 0 < self.heartbeat_interval_s < self.heartbeat_timeout_s:
+            raise ValueError("need 0 < heartbeat_interval_s < heartbeat_timeout_s")
+        if not 0 < self.backoff_initial_s <= self.backoff_max_s:
+            raise ValueError("need 0 < backoff_initial_s <= backoff_max_s")
+
+
+@dataclass(slots=True)
+class LinkCounters:
+    connects: int = 0
+    connect_failures: int = 0
+    reconnects: int = 0
+    frames_in: int = 0
+    frames_out: int = 0
+    bytes_in: int = 0
+    bytes_out: int = 0
+    handshakes_accepted: int = 0
+    handshakes_rejected: int = 0
+    chunks_in: int = 0
+    chunks_admitted: int = 0
+    chunks_refused: int = 0
+    malformed: int = 0
+    observations_sent: int = 0
+    clock_round_trips: int = 0
+    clock_syncs: int = 0
+    heartbeat_misses: int = 0
+    link_timeouts: int = 0
+    protocol_violations: int = 0
+    oversized: int = 0
+    byes_sent: int = 0
+    byes_received: int = 0
+
+    def snapshot(self) -> dict[str, int]:
+        return asdict(self)
+
+
+class LinkState(StrEnum):
+    IDLE = "idle"
+    CONNECTING = "connecting"
+    HANDSHAKING = "handshaking"
+    ACCEPTED = "accepted"
+    CLOSING = "closing"
+    BACKOFF = "backoff"
+    STOPPED = "stopped"

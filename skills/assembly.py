@@ -1,0 +1,292 @@
+"""One tabletop assembly cycle: acquire → grasp → transport → pre-contact → insert → verify →
+retreat, driven tick by tick.
+
+The runner owns the cycle's sequence and its evidence, not the motion: each tick it looks at
+the measured state and at the phase and fallback state the core decided, and may ask the core
+for a phase transition (with the evidence a guarded one needs). The core decides; the runner
+adapts to what was decided. Classical moves are planned here and played back only while the
+core gives the planner the tick (see :mod:`skills.planner`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from enum import StrEnum
+
+import numpy as np
+
+from assurance.fallback import Mode
+from skills.contact import ContactOwner, ContactState
+from skills.evaluator import Evaluator, Verdict
+from skills.layout import CellLayout
+from skills.phases import TaskPhase
+from skills.planner import PlannedMove, Planner
+from skills.trajectory import JointSample
+
+P = TaskPhase
+
+
+class Step(StrEnum):
+    START = "start"
+    PICK_APPROACH = "pick approach"
+    PICK_DESCEND = "pick descend"
+    GRASP = "grasp"
+    LIFT = "lift"
+    TRANSPORT = "transport"
+    APPROACH = "pre-contact"
+    INSERT = "insert"
+    VERIFY = "verify"
+    RELEASE = "release"
+    RETREAT_LIFT = "retreat lift"
+    RETREAT_HOME = "retreat home"
+    DONE = "done"
+
+
+@dataclass(frozen=True, slots=True)
+class CycleTiming:
+    grasp_s: float = 0.35
+    release_s: float = 0.25
+    approach_timeout_s: float = 8.0
+    insert_timeout_s: float = 4.0
+    request_interval_s: float = 0.1
+    settle_rad: float = 0.0015
+    """A classical move is done when every joint is this close to its end and at rest: a grasp
+    closed on a still-settling arm holds the peg off-centre, more than the hole's clearance."""
+    at_rest_rad_s: float = 0.05
+    pose_tolerance_m: float = 0.001
+    pose_height_tolerance_m: float = 0.003
+    rotation_tolerance_rad: float = 0.02
+    envelope_force_n: float = 6.0
+    insert_short_of_bottom_m: float = 0.003
+    """The descent ends this far above the hole's bottom: bottoming out is an impact."""
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class Sensed:
+    t_ns: int
+    q: np.ndarray
+    qd: np.ndarray
+    force_norm: float
+    fresh: bool
+    """A new state sample (with its wrench) arrived for this tick."""
+    driver_ok: bool
+
+
+@dataclass(frozen=True, slots=True)
+class PhaseRequest:
+    to: TaskPhase
+    evidence: dict[str, bool]
+
+
+@dataclass(frozen=True, slots=True)
+class Outcome:
+    verified: bool
+    depth_m: float
+    reason: str
+
+
+class AssemblyRunner:
+    def __init__(
+        self, layout: CellLayout, planner: Planner, contact: ContactOwner,
+        evaluator: Evaluator, depth_probe: Callable[[], float],
+        timing: CycleTiming | None = None,
+    ) -> None:
+        self.layout, self.planner, self.contact = layout, planner, contact
+        self.evaluator, self.depth_probe = evaluator, depth_probe
+        self.timing = timing or CycleTiming()
+        self.step = Step.DONE
+        self.gripper = layout.gripper_open
+        self.outcome: Outcome | None = None
+        self._move: PlannedMove | None = None
+        self._since_ns = 0
+        self._last_request_ns = -(10**18)
+        self._failure = ""
+
+    # -- driven by the cell ----------------------------------------------------------------
+
+    def begin(self, t_ns: int) -> None:
+        self._enter(Step.START, t_ns)
+        self.outcome, self._failure = None, ""
+        self.contact.reset()
+        self.gripper = self.layout.gripper_open
+
+    @property
+    def done(self) -> bool:
+        return self.step is Step.DONE
+
+    def planner_setpoint(self, dt_s: float) -> JointSample | None:
+        """The classical setpoint for a tick the core gave to the planner (None: no move)."""
+        return None if self._move is None else self._move.advance(dt_s)
+
+    def update(self, sensed: Sensed, phase: TaskPhase, mode: Mode) -> PhaseRequest | None:
+        """Advance the cycle; may return a phase transition to ask the core for."""
+        if self.step is Step.DONE:
+            return None
+        handler = _HANDLERS.get(self.step, AssemblyRunner._planned_step)
+        return handler(self, sensed, phase, mode)
+
+    # -- steps -------------------------------------------------------------------------------
+
+    def _start(self, s: Sensed, phase: TaskPhase, mode: Mode) -> PhaseRequest | None:
+        if phase is P.FREE_SPACE:
+            self._plan(Step.PICK_APPROACH, s, self.layout.tcp_above(self.layout.grasp_tcp, 0.1))
+            return None
+        target = {P.IDLE: P.VALIDATE, P.VALIDATE: P.FREE_SPACE}.get(phase)
+        return self._request(target, s, mode) if target else None
+
+    def _planned_step(self, s: Sensed, phase: TaskPhase, mode: Mode) -> PhaseRequest | None:
+        move = self._move
+        if move is None or not move.finished or not self._at_rest(s) or np.abs(
+            s.q - move.target
+        ).max() > self.timing.settle_rad:
+            return None
+        return _AFTER_MOVE[self.step](self, s, phase, mode)
+
+    def _after_pick_approach(self, s: Sensed, phase: TaskPhase, mode: Mode) -> None:
+        self._plan(Step.PICK_DESCEND, s, self.layout.grasp_tcp)
+
+    def _after_pick_descend(self, s: Sensed, phase: TaskPhase, mode: Mode) -> None:
+        self.gripper = self.layout.gripper_closed
+        self._enter(Step.GRASP, s.t_ns)
+
+    def _grasp(self, s: Sensed, phase: TaskPhase, mode: Mode) -> None:
+        if self._elapsed(s) >= self.timing.grasp_s:
+            lift = self.layout.tcp_above(self.layout.peg_start, self.layout.clearance_height)
+            self._plan(Step.LIFT, s, lift)
+
+    def _after_lift(self, s: Sensed, phase: TaskPhase, mode: Mode) -> None:
+        self._plan(Step.TRANSPORT, s, self.layout.staging_tcp)
+
+    def _after_transport(self, s: Sensed, phase: TaskPhase, mode: Mode) -> PhaseRequest | None:
+        if phase is P.PRE_CONTACT:
+            self._move = None
+            self._enter(Step.APPROACH, s.t_ns)
+            return None
+        return self._request(P.PRE_CONTACT, s, mode)
+
+    def _approach(self, s: Sensed, phase: TaskPhase, mode: Mode) -> PhaseRequest | None:
+        if phase is P.CONTACT:
+            tcp = self.planner.kin.forward(s.q).position
+            bottom = self.layout.pre_insert_tcp[2] - self.layout.pre_insert_gap - (
+                self.layout.hole_depth - self.timing.insert_short_of_bottom_m)
+            self.contact.start(s.q, self.layout.hole_top[:2], float(tcp[2]), bottom)
+            self._enter(Step.INSERT, s.t_ns)
+            return None
+        if self._elapsed(s) > self.timing.approach_timeout_s:
+            return self._fail("pre-contact approach timed out", s, mode)
+        evidence = self.contact_evidence(s)
+        if phase is P.PRE_CONTACT and evidence["pose_within_tolerance"] and self._at_rest(s):
+            return self._request(P.CONTACT, s, mode, evidence)
+        return None
+
+    def _insert(self, s: Sensed, phase: TaskPhase, mode: Mode) -> PhaseRequest | None:
+        if phase is P.VERIFY:
+            self._enter(Step.VERIFY, s.t_ns)
+            return None
+        if self.contact.state is ContactState.RETREATED and mode is Mode.RUNNING:
+            return self._fail("contact anomaly: force-aware retreat", s, mode)
+        timed_out = self._elapsed(s) > self.timing.insert_timeout_s
+        if self.contact.state is ContactState.DONE or timed_out:
+            return self._request(P.VERIFY, s, mode)
+        return None
+
+    def _verify(self, s: Sensed, phase: TaskPhase, mode: Mode) -> PhaseRequest | None:
+        if phase is P.RETREAT:
+            self._enter(Step.RELEASE, s.t_ns)
+            self.gripper = self.layout.gripper_open
+            return None
+        if self.outcome is None:
+            verdict: Verdict = self.evaluator.verdict(self.depth_probe())
+            self.outcome = Outcome(verdict.verified, verdict.depth_m, verdict.reason)
+        return self._request(P.RETREAT, s, mode)
+
+    def _release(self, s: Sensed, phase: TaskPhase, mode: Mode) -> None:
+        if self._elapsed(s) >= self.timing.release_s:
+            tcp = self.planner.kin.forward(s.q).position
+            lift = np.array([tcp[0], tcp[1], self.layout.staging_tcp[2]])
+            self._plan(Step.RETREAT_LIFT, s, lift)
+
+    def _after_retreat_lift(self, s: Sensed, phase: TaskPhase, mode: Mode) -> None:
+        self._move = self.planner.to_joints(s.q, self.layout.home_q)
+        self._enter(Step.RETREAT_HOME, s.t_ns)
+
+    def _after_retreat_home(self, s: Sensed, phase: TaskPhase, mode: Mode) -> PhaseRequest | None:
+        if phase is P.IDLE:
+            self._move = None
+            if self.outcome is None:
+                self.outcome = Outcome(False, self.depth_probe(), self._failure or "no verdict")
+            self._enter(Step.DONE, s.t_ns)
+            return None
+        return self._request(P.IDLE, s, mode)
+
+    # -- evidence ----------------------------------------------------------------------------
+
+    def contact_evidence(self, s: Sensed) -> dict[str, bool]:
+        """What the PRE_CONTACT → CONTACT guard needs, measured, never assumed."""
+        pose = self.planner.kin.forward(s.q)
+        goal = self.layout.pre_insert_tcp
+        lateral = float(np.linalg.norm(pose.position[:2] - goal[:2]))
+        height = abs(float(pose.position[2] - goal[2]))
+        cos = (np.trace(pose.rotation.T @ self.layout.tool_down) - 1.0) / 2.0
+        rotation = float(np.arccos(np.clip(cos, -1.0, 1.0)))
+        t = self.timing
+        margin = self.layout.workspace_margin
+        inside = bool(np.all(np.abs(pose.position - goal) <= margin))
+        return {
+            "pose_within_tolerance": lateral <= t.pose_tolerance_m
+            and height <= t.pose_height_tolerance_m and rotation <= t.rotation_tolerance_rad,
+            "controller_mode_ack": s.driver_ok,
+            "force_fresh": s.fresh,
+            "contact_envelope_valid": inside and s.force_norm < t.envelope_force_n,
+        }
+
+    # -- helpers -----------------------------------------------------------------------------
+
+    def _plan(self, step: Step, s: Sensed, tcp: np.ndarray) -> None:
+        self._move = self.planner.to_tool_pose(s.q, tcp)
+        self._enter(step, s.t_ns)
+
+    def _enter(self, step: Step, t_ns: int) -> None:
+        self.step, self._since_ns = step, t_ns
+
+    def _elapsed(self, s: Sensed) -> float:
+        return (s.t_ns - self._since_ns) * 1e-9
+
+    def _at_rest(self, s: Sensed) -> bool:
+        return float(np.abs(s.qd).max()) <= self.timing.at_rest_rad_s
+
+    def _request(self, to: TaskPhase, s: Sensed, mode: Mode,
+                 evidence: dict[str, bool] | None = None) -> PhaseRequest | None:
+        """Ask for ``to`` while the runtime is RUNNING, at most every request interval."""
+        if mode is not Mode.RUNNING:
+            return None
+        if s.t_ns - self._last_request_ns < self.timing.request_interval_s * 1e9:
+            return None
+        self._last_request_ns = s.t_ns
+        return PhaseRequest(to, evidence or {})
+
+    def _fail(self, reason: str, s: Sensed, mode: Mode) -> PhaseRequest | None:
+        """Give the cycle up: retreat, release the peg, go home, report why."""
+        self._failure = reason
+        self.outcome = Outcome(False, self.depth_probe(), reason)
+        self._enter(Step.VERIFY, s.t_ns)
+        return self._request(P.RETREAT, s, mode)
+
+
+_HANDLERS: dict[Step, Callable[..., PhaseRequest | None]] = {
+    Step.START: AssemblyRunner._start,
+    Step.GRASP: AssemblyRunner._grasp,
+    Step.APPROACH: AssemblyRunner._approach,
+    Step.INSERT: AssemblyRunner._insert,
+    Step.VERIFY: AssemblyRunner._verify,
+    Step.RELEASE: AssemblyRunner._release,
+}
+_AFTER_MOVE: dict[Step, Callable[..., PhaseRequest | None]] = {
+    Step.PICK_APPROACH: AssemblyRunner._after_pick_approach,
+    Step.PICK_DESCEND: AssemblyRunner._after_pick_descend,
+    Step.LIFT: AssemblyRunner._after_lift,
+    Step.TRANSPORT: AssemblyRunner._after_transport,
+    Step.RETREAT_LIFT: AssemblyRunner._after_retreat_lift,
+    Step.RETREAT_HOME: AssemblyRunner._after_retreat_home,
+}

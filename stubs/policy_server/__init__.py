@@ -1,0 +1,11 @@
+"""The reference policy server: ``python -m stubs.policy_server --port N`` or ``serve(config)``."""
+
+from stubs.policy_server.config import ServerConfig
+from stubs.policy_server.faults import FaultConfig
+from stubs.policy_server.policy import InsertionPolicy, LatencyModel
+from stubs.policy_server.server import PolicyServer, ServerStats, serve
+
+__all__ = [
+    "FaultConfig", "InsertionPolicy", "LatencyModel", "PolicyServer", "ServerConfig",
+    "ServerStats", "serve",
+]

@@ -1,0 +1,143 @@
+"""Fault injection for the reference policy server (test tooling).
+
+Two kinds of fault:
+
+- per-chunk faults, given as a fraction of chunks: ``drop``, ``duplicate``, ``reorder`` (hold
+  one chunk back and send it after the next), ``spike`` (extra latency of ``spike_ms``),
+  ``garbage`` (a chunk frame whose body cannot be decoded: a MALFORMED refusal), ``nonfinite``
+  (a NaN action), ``wrong_dim`` (one action dimension too many). Fractions are applied on a
+  fixed, deterministic pattern (0.5 hits every second chunk, 1/3 every third), so a test knows
+  which chunk is hit without depending on a random seed;
+- per-connection faults after the N-th chunk sent on a connection, for the first
+  ``affect_connections`` connections: a frame that is not an envelope (``garbage_frame_after``),
+  a frame over the size limit (``oversized_after``), an unknown message type
+  (``unknown_type_after``), a clean close (``close_after``) or total silence, heartbeats included
+  (``stall_after``).
+
+And: ``checkpoint`` (every chunk claims another checkpoint than the one offered),
+``chunk_before_offer`` (a chunk sent before the handshake), ``resend_on_reconnect`` (after a new
+handshake, first resend the last N chunks produced before it, dropped ones included).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields
+
+import msgspec
+
+from assurance.envelope import ArrayPayload, WireChunk
+from kernel.wire import MAX_FRAME_BYTES, encode_chunk_body, encode_raw
+
+_FRACTIONS = ("drop", "duplicate", "reorder", "spike", "garbage", "nonfinite", "wrong_dim")
+
+
+@dataclass(frozen=True, slots=True)
+class FaultConfig:
+    drop: float = 0.0
+    duplicate: float = 0.0
+    reorder: float = 0.0
+    spike: float = 0.0
+    spike_ms: float = 100.0
+    garbage: float = 0.0
+    nonfinite: float = 0.0
+    wrong_dim: float = 0.0
+    checkpoint: str | None = None
+    garbage_frame_after: int | None = None
+    oversized_after: int | None = None
+    unknown_type_after: int | None = None
+    close_after: int | None = None
+    stall_after: int | None = None
+    chunk_before_offer: bool = False
+    resend_on_reconnect: int = 0
+    affect_connections: int = 1
+
+    def __post_init__(self) -> None:
+        for name in _FRACTIONS:
+            if not 0.0 <= getattr(self, name) <= 1.0:
+                raise ValueError(f"fault {name} is a fraction in [0, 1]")
+
+    @classmethod
+    def parse(cls, pairs: list[str]) -> FaultConfig:
+        """``NAME=VALUE`` pairs from the command line (``--fault drop=0.5``)."""
+        types = {f.name: f.type for f in fields(cls)}
+        values: dict[str, object] = {}
+        for pair in pairs:
+            name, _, text = pair.partition("=")
+            if name not in types:
+                raise ValueError(f"unknown fault {name!r} (known: {', '.join(types)})")
+            values[name] = _value(str(types[name]), text)
+        return cls(**values)  # type: ignore[arg-type]
+
+
+def _value(kind: str, text: str) -> object:
+    if kind.startswith("bool"):
+        return text.lower() in ("1", "true", "yes", "")
+    if kind.startswith("str"):
+        return text
+    if kind.startswith("int"):
+        return int(text)
+    return float(text)
+
+
+class _Pattern:
+    """Hits a fraction of calls on a fixed pattern: 0.5 → every 2nd, 1.0 → every call."""
+
+    def __init__(self, fraction: float) -> None:
+        self.fraction = fraction
+        self.calls = 0
+
+    def hit(self) -> bool:
+        before = math.floor(self.calls * self.fraction + 1e-9)
+        self.calls += 1
+        return math.floor(self.calls * self.fraction + 1e-9) > before
+
+
+@dataclass(frozen=True, slots=True)
+class ChunkFaults:
+    """What happens to one chunk."""
+
+    drop: bool = False
+    duplicate: bool = False
+    reorder: bool = False
+    spike_s: float = 0.0
+    garbage: bool = False
+    nonfinite: bool = False
+    wrong_dim: bool = False
+
+
+class FaultPlan:
+    """Decides, chunk by chunk, which faults apply (shared by all connections of a server)."""
+
+    def __init__(self, config: FaultConfig) -> None:
+        self.config = config
+        self._patterns = {name: _Pattern(getattr(config, name)) for name in _FRACTIONS}
+
+    def next_chunk(self) -> ChunkFaults:
+        hits = {name: pattern.hit() for name, pattern in self._patterns.items()}
+        spike = self.config.spike_ms / 1000.0 if hits.pop("spike") else 0.0
+        return ChunkFaults(spike_s=spike, **hits)
+
+
+# -- bad frames --------------------------------------------------------------------------------
+
+
+def garbage_chunk_body(wire: WireChunk) -> bytes:
+    """A chunk body that decodes as MessagePack but not as a chunk: its action bytes are cut
+    short, so the client can still name the chunk it refuses."""
+    actions = wire.actions
+    short = ArrayPayload(dtype=actions.dtype, shape=actions.shape, data=actions.data[:-3])
+    return msgspec.msgpack.encode(msgspec.structs.replace(wire, actions=short))
+
+
+def garbage_frame() -> bytes:
+    """Not an envelope at all: 0xc1 is a byte MessagePack never uses."""
+    return b"\xc1garbage\x00\xff"
+
+
+def oversized_frame() -> bytes:
+    return encode_chunk_body(msgspec.msgpack.encode(b"\x00" * (MAX_FRAME_BYTES + 1)))
+
+
+def unknown_type_frame() -> bytes:
+    return encode_raw("telemetry", msgspec.msgpack.encode({"note": "not in this protocol"}))

@@ -1,0 +1,166 @@
+"""A real core behind a real client, talking to the reference server over loopback.
+
+:class:`LoopbackGateway` is the gateway a test shell provides: a :class:`kernel.core.runtime.Core`
+built from the standard cell of ``tools/scenarios/base.py`` (no session until a handshake, as
+in a live run), an arm that follows every command exactly, and a control tick loop that passes
+the core's lines (its inference requests) to the client. Nothing of the core is mocked.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import dataclasses
+import time
+from collections.abc import AsyncIterator, Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from assurance.handshake import ClientHello
+from kernel.core.events import Event, LinkEvent, StateEvent
+from kernel.core.lines import ChunkLine, HandshakeLine, Line, TickLine
+from kernel.core.runtime import Core
+from kernel.scenario.config import build_config
+from kernel.scenario.fields import Where
+from kernel.shell.client import ADMITTED, RobotClient
+from kernel.shell.link_types import ClientConfig, RobotSample
+from stubs.policy_server import LatencyModel, PolicyServer, ServerConfig
+from tools.scenarios.base import ScenarioSpec
+
+TIMING = {"low_watermark_ms": 150, "high_watermark_ms": 400, "request_retry_ms": 40}
+CLOCK_OFFSET_NS = 1_234_567_891  # the server's clock runs this far ahead of ours
+
+
+class LoopbackGateway:
+    def __init__(self, phase: str = "FREE_SPACE", timing: dict[str, Any] | None = None) -> None:
+        spec = ScenarioSpec(name="wire", description="", events=[], until=0, expect=[],
+                            phase=phase, timing={**TIMING, **(timing or {})})
+        config = build_config(spec.document(), Where("wire", ""))
+        self.config = dataclasses.replace(config, initial_session=None)
+        self.core = Core(self.config)
+        self.q = self.config.initial_q.copy()
+        self.events: list[Event] = []
+        self.lines: list[Line] = []
+        self.client: RobotClient | None = None
+        self.origin_ns = time.monotonic_ns()
+
+    # -- the Gateway protocol ------------------------------------------------------------------
+
+    def now_ns(self) -> int:
+        return time.monotonic_ns() - self.origin_ns
+
+    def feed(self, event: Event) -> list[Line]:
+        self.events.append(event)
+        lines = self.core.handle(event)
+        self.lines.extend(lines)
+        return lines
+
+    def client_side_hello(self) -> ClientHello:
+        return self.config.client.hello(self.core.state.epoch)
+
+    def capture_observation(self) -> RobotSample:
+        return RobotSample(q=self.q.copy(), task_phase=str(self.core.state.task.phase),
+                           qd=np.zeros_like(self.q), wrench=np.zeros(6))
+
+    # -- the shell's control loop --------------------------------------------------------------
+
+    def tick(self) -> None:
+        command, lines = self.core.tick(self.now_ns())
+        self.lines.extend(lines)
+        if command.target is not None:
+            self.q = np.array(command.target, dtype=float)
+        lines += self.feed(StateEvent(t=self.now_ns(), q=tuple(self.q)))
+        if self.client is not None:
+            self.client.notify(lines)
+
+    async def run_ticks(self, stop: asyncio.Event, period_s: float = 0.004) -> None:
+        while not stop.is_set():
+            self.tick()
+            await asyncio.sleep(period_s)
+
+    # -- what happened -------------------------------------------------------------------------
+
+    def chunk_lines(self) -> list[ChunkLine]:
+        return [line for line in self.lines if isinstance(line, ChunkLine)]
+
+    def admitted(self) -> list[ChunkLine]:
+        return [line for line in self.chunk_lines() if line.decision in ADMITTED]
+
+    def refused_with(self, reason: str) -> list[ChunkLine]:
+        return [line for line in self.chunk_lines() if reason in line.reasons]
+
+    def handshakes(self) -> list[HandshakeLine]:
+        return [line for line in self.lines if isinstance(line, HandshakeLine)]
+
+    def link_events(self, status: str) -> list[LinkEvent]:
+        return [e for e in self.events if isinstance(e, LinkEvent) and e.status == status]
+
+
+@dataclass
+class Link:
+    gateway: LoopbackGateway
+    client: RobotClient
+    server: PolicyServer
+
+
+_LAST: Link | None = None
+
+
+def server_config(**changes: Any) -> ServerConfig:
+    # A slow arm (0.1 rad/s): a chunk that arrives after one of this VM's pauses (100-200 ms
+    # garbage-collector or scheduler stalls were seen) still projects within 0.02 rad of the
+    # hold, so a pause costs a stale refusal, never an INFEASIBLE → REPLAN_OR_RETREAT.
+    base = ServerConfig(latency=LatencyModel(2.0, 4.0), clock_offset_ns=CLOCK_OFFSET_NS,
+                        max_speed=0.1, heartbeat_interval_s=0.05, heartbeat_timeout_s=0.5)
+    return dataclasses.replace(base, **changes)
+
+
+def client_config(port: int, **changes: Any) -> ClientConfig:
+    base = ClientConfig(url=f"ws://127.0.0.1:{port}", client_id="robot-test",
+                        heartbeat_interval_s=0.05, heartbeat_timeout_s=0.5, clock_burst=5,
+                        clock_refresh_s=0.5, backoff_initial_s=0.02, backoff_max_s=0.2)
+    return dataclasses.replace(base, **changes)
+
+
+@contextlib.asynccontextmanager
+async def running(
+    server: ServerConfig | None = None, gateway: LoopbackGateway | None = None,
+    port: int | None = None, **client_changes: Any,
+) -> AsyncIterator[Link]:
+    """A server (in-process unless ``port`` names one elsewhere), a client and a tick loop."""
+    gateway = gateway or LoopbackGateway()
+    async with contextlib.AsyncExitStack() as stack:
+        policy = await stack.enter_async_context(PolicyServer(server or server_config()))
+        client = RobotClient(client_config(port or policy.port, **client_changes), gateway)
+        gateway.client = client
+        stop = asyncio.Event()
+        async with asyncio.TaskGroup() as tasks:
+            tasks.create_task(client.run())
+            tasks.create_task(gateway.run_ticks(stop))
+            global _LAST
+            _LAST = Link(gateway, client, policy)
+            try:
+                yield _LAST
+            finally:
+                stop.set()
+                client.stop()
+
+
+async def wait_for(condition: Callable[[], object], what: str, timeout_s: float = 8.0) -> None:
+    """Wait for ``condition``; the generous timeout only turns a hang into a failure."""
+    try:
+        async with asyncio.timeout(timeout_s):
+            while not condition():
+                await asyncio.sleep(0.005)
+    except TimeoutError as error:
+        raise AssertionError(f"timed out waiting for: {what}\n{_story()}") from error
+
+
+def _story() -> str:
+    """What the last link did, for the failure message."""
+    if _LAST is None:
+        return ""
+    lines = [line for line in _LAST.gateway.lines if not isinstance(line, TickLine)]
+    return "\n".join([str(_LAST.client.counters.snapshot()), *map(str, lines[-12:])])

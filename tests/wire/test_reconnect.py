@@ -1,0 +1,60 @@
+"""Link loss: LinkEvent(down), reconnection, a new handshake with the new epoch, and old chunks
+resent by the server refused for their epoch."""
+
+from __future__ import annotations
+
+from assurance.reasons import ReasonCode as R
+from kernel.core.events import HandshakeEvent, LinkEvent
+from stubs.policy_server import FaultConfig
+from tests.wire.harness import running, server_config, wait_for
+
+
+async def test_server_disconnect_reconnects_with_a_new_epoch() -> None:
+    faults = FaultConfig(close_after=3, resend_on_reconnect=2)
+    async with running(server_config(faults=faults)) as link:
+        gateway, stats = link.gateway, link.server.stats
+        await wait_for(lambda: len(stats.hellos) >= 2, "a second hello")
+        await wait_for(lambda: len(gateway.refused_with(R.OLD_QUEUE_EPOCH)) >= 2,
+                       "the resent chunks refused")
+        await wait_for(lambda: len(gateway.admitted()) >= 6, "chunks in the new epoch")
+        events = list(gateway.events)
+    first, second = stats.hellos[0].hello.queue_epoch, stats.hellos[1].hello.queue_epoch
+    assert stats.byes_sent[0] == "fault_injected"
+    # the link loss was fed to the core before the new handshake
+    down = next(i for i, e in enumerate(events) if isinstance(e, LinkEvent) and e.status == "down")
+    handshakes = [i for i, e in enumerate(events) if isinstance(e, HandshakeEvent)]
+    assert handshakes[0] < down < handshakes[1]
+    # the new hello carries the epoch the core started at the link loss
+    accepted_epochs = {line.queue_epoch for line in gateway.admitted()}
+    assert second > first and second == gateway.handshakes()[1].queue_epoch
+    assert max(accepted_epochs) == second
+    resent = gateway.refused_with(R.OLD_QUEUE_EPOCH)
+    assert all(line.decision in ("ignored", "rejected") for line in resent)
+    first_session = {line.chunk_id for line in gateway.chunk_lines() if line.queue_epoch < second}
+    assert {line.chunk_id for line in resent} <= first_session
+    assert stats.chunks_resent == 2 and link.client.counters.reconnects == 1
+
+
+async def test_resent_chunk_never_seen_is_refused_for_its_epoch_too() -> None:
+    # Every second chunk of the first session is dropped, so a resend replays one the client
+    # never saw: not a duplicate, still refused for its epoch (and its forgotten observation).
+    faults = FaultConfig(drop=0.5, close_after=2, resend_on_reconnect=2)
+    async with running(server_config(faults=faults)) as link:
+        await wait_for(lambda: link.server.stats.chunks_resent >= 2, "a resend")
+        await wait_for(lambda: len(link.gateway.refused_with(R.OLD_QUEUE_EPOCH)) >= 2,
+                       "their refusals")
+    lines = link.gateway.refused_with(R.OLD_QUEUE_EPOCH)
+    unseen = [line for line in lines if R.DUPLICATE not in line.reasons]
+    seen = [line for line in lines if R.DUPLICATE in line.reasons]
+    assert unseen and all(line.decision == "rejected" for line in unseen)
+    assert all(R.UNKNOWN_OBSERVATION in line.reasons for line in unseen)
+    assert seen and all(line.decision == "ignored" for line in seen)
+
+
+async def test_server_gone_then_back_the_client_keeps_trying() -> None:
+    faults = FaultConfig(close_after=1, affect_connections=3)
+    async with running(server_config(faults=faults)) as link:
+        await wait_for(lambda: link.client.counters.handshakes_accepted >= 4, "four sessions")
+    downs = link.gateway.link_events("down")
+    assert len(downs) >= 3
+    assert link.client.counters.reconnects >= 3
