@@ -11,6 +11,7 @@ thread is a daemon: a call abandoned inside an SDK never blocks interpreter exit
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import queue
 import threading
 from collections.abc import Callable
@@ -75,7 +76,5 @@ def _deliver(loop: asyncio.AbstractEventLoop, future: asyncio.Future[Any], *,
         else:
             future.set_result(result)
 
-    try:
+    with contextlib.suppress(RuntimeError):  # the loop is closed: nobody is waiting any more
         loop.call_soon_threadsafe(settle)
-    except RuntimeError:
-        pass  # the loop is closed: nobody is waiting any more

@@ -16,6 +16,7 @@ from collections.abc import Sequence
 
 import msgspec
 
+from drivers.base import DriverError
 from kernel.cli_run import add_commands
 from kernel.core.lines import encode
 from kernel.replay import as_dict, check_expectations, replay
@@ -32,6 +33,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         return args.handler(args)
     except ScenarioError as error:
         print(f"warden: invalid input: {error}", file=sys.stderr)
+        return EXIT_INVALID
+    except DriverError as error:
+        print(f"warden: cannot start the device: {error}", file=sys.stderr)
         return EXIT_INVALID
     except BrokenPipeError:
         return EXIT_OK

@@ -22,6 +22,8 @@ class Evaluator:
     """Depth of the peg below the fixture's top face that counts as inserted."""
 
     def verdict(self, insertion_depth_m: float) -> Verdict:
+        if insertion_depth_m != insertion_depth_m:  # NaN: nobody measured it
+            return Verdict(False, 0.0, "no independent evaluator on this cell")
         if insertion_depth_m >= self.tolerance_m:
             return Verdict(True, insertion_depth_m, "inserted")
         return Verdict(False, insertion_depth_m,

@@ -1,8 +1,9 @@
 """A tiny line-JSON control port for injecting faults into an emulator process.
 
 Each request is one JSON object per line: ``{"fault": "protective_stop", ...}``; each answer is
-one JSON object per line: ``{"ok": true}`` or ``{"ok": false, "error": "..."}``. Emulators
-register one handler per fault name. This is test tooling, bound to loopback only.
+one JSON object per line: ``{"ok": true}`` (plus whatever a handler returns, for queries such
+as ``ground_truth``) or ``{"ok": false, "error": "..."}``. Emulators register one handler per
+name. This is test tooling, bound to loopback only.
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ import threading
 from collections.abc import Callable, Mapping
 from typing import Any
 
-Handler = Callable[[dict[str, Any]], None]
+Handler = Callable[[dict[str, Any]], dict[str, Any] | None]
 
 
 class FaultControlServer:
@@ -47,8 +48,8 @@ class FaultControlServer:
 def _dispatch(handlers: Mapping[str, Handler], line: bytes) -> bytes:
     try:
         request = json.loads(line)
-        handlers[request["fault"]](request)
-        answer: dict[str, Any] = {"ok": True}
+        result = handlers[request["fault"]](request)
+        answer: dict[str, Any] = {"ok": True, **(result if isinstance(result, dict) else {})}
     except KeyError as error:
         answer = {"ok": False, "error": f"unknown fault or missing field: {error}"}
     except Exception as error:  # a bad request must not kill the emulator
@@ -56,10 +57,13 @@ def _dispatch(handlers: Mapping[str, Handler], line: bytes) -> bytes:
     return json.dumps(answer).encode()
 
 
-def inject(address: tuple[str, int], fault: str, timeout_s: float = 2.0, **fields: Any) -> None:
-    """Send one fault request and raise if the emulator refused it."""
+def inject(
+    address: tuple[str, int], fault: str, timeout_s: float = 2.0, **fields: Any
+) -> dict[str, Any]:
+    """Send one request; return the answer, raise if the emulator refused it."""
     with socket.create_connection(address, timeout=timeout_s) as conn:
         conn.sendall(json.dumps({"fault": fault, **fields}).encode() + b"\n")
         answer = json.loads(conn.makefile("rb").readline())
     if not answer.get("ok"):
         raise RuntimeError(f"fault {fault!r} refused: {answer.get('error')}")
+    return answer

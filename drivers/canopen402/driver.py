@@ -73,7 +73,11 @@ class CiA402Driver:
         self._seq = 0
 
     @classmethod
-    def from_mapping(cls, table: Mapping[str, Any], where: str = "canopen402") -> CiA402Driver:
+    def from_mapping(cls, table: Mapping[str, Any], where: str = "canopen402",
+                     name: str | None = None) -> CiA402Driver:
+        """Build from a manifest table; ``name`` is used when the table does not set one."""
+        if name is not None and "name" not in table:
+            table = {**table, "name": name}
         return cls(CiA402Settings.from_mapping(table, where))
 
     @property

@@ -62,9 +62,11 @@ class DynamixelDriver:
         self._seq = 0
 
     @classmethod
-    def from_mapping(cls, table: Mapping[str, Any], name: str = "dynamixel") -> DynamixelDriver:
+    def from_mapping(cls, table: Mapping[str, Any], where: str | None = None,
+                     name: str = "dynamixel") -> DynamixelDriver:
         """Build from a manifest table; unknown or ill-typed keys raise SettingsError by name."""
-        return cls(settings_from_mapping(DynamixelSettings, table, f"drivers.{name}"), name)
+        place = where or f"drivers.{name}"
+        return cls(settings_from_mapping(DynamixelSettings, table, place), name)
 
     @property
     def bus(self) -> DynamixelBus | None:

@@ -37,6 +37,9 @@ class SimFaults:
 
 
 class SimDriver:
+    capabilities = frozenset({CommandKind.POSITION, CommandKind.VELOCITY, CommandKind.HOLD,
+                              CommandKind.STOP, CommandKind.IMPEDANCE})
+
     def __init__(
         self, plant: Plant, name: str = "sim", lock: threading.Lock | None = None,
         faults: SimFaults | None = None,

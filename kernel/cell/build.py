@@ -12,8 +12,10 @@ import numpy as np
 
 from assurance.handshake import HandshakeOffer
 from assurance.kinematics import ArmKinematics
+from drivers.base import CommandKind
 from drivers.lifecycle import ManagedDriver
 from kernel.cell.control import CellController
+from kernel.cell.emulated import DeviceWorld, EmulatorWorld
 from kernel.cell.motion import MotionController
 from kernel.cell.operator import SimulatedOperator
 from kernel.cell.world import SimWorld, World
@@ -79,7 +81,9 @@ def build_cell(manifest: Manifest, clock: Clock, recorder: Recorder | None) -> C
     runner = AssemblyRunner(layout, planner, contact,
                             Evaluator(manifest.cell.insertion_tolerance_m), world.insertion_depth)
     interpolator_limits = MotionLimits.from_joint_limits(arm_limits, INTERPOLATOR_JERK)
-    motion = MotionController(interpolator_limits, layout.home_q, runner, contact, period)
+    impedance = CommandKind.IMPEDANCE in getattr(world.driver(), "capabilities", frozenset())
+    motion = MotionController(interpolator_limits, layout.home_q, runner, contact, period,
+                              impedance)
     driver = ManagedDriver(world.driver())
     controller = CellController(gateway, driver, world, runner, motion, SimulatedOperator(),
                                 manifest.cell.cycles)
@@ -90,9 +94,14 @@ def build_cell(manifest: Manifest, clock: Clock, recorder: Recorder | None) -> C
 
 def _world(manifest: Manifest, period_ns: int) -> World:
     if manifest.driver_name == "sim":
+        if manifest.driver_settings:
+            key = next(iter(manifest.driver_settings))
+            raise ManifestError(f"{manifest.path}: driver.{key}: unknown key (the sim driver "
+                                "takes no settings)")
         return SimWorld(period_ns)
-    raise ManifestError(f"{manifest.path}: driver.name: the simulated cell cannot run driver "
-                        f"{manifest.driver_name!r} yet")
+    if manifest.emulator.get("launch", True) is False:
+        return DeviceWorld(manifest)
+    return EmulatorWorld(manifest)
 
 
 def offer_for(manifest: Manifest) -> HandshakeOffer:

@@ -63,8 +63,11 @@ class CellController:
         self.runner.begin(self._cycle_started_ns)
 
     async def tick(self) -> None:
-        t = self.gateway.now_ns()
         sample = await self.driver.read()
+        # Stamp after the read: while it awaited, the policy link may have fed the core a
+        # later event, and the core only ever moves forward in time. Everything from here to
+        # the write is synchronous, so the whole decision of this period shares one instant.
+        t = self.gateway.now_ns()
         sensed = self._sense(sample, t)
         self._report_driver_fault(t)
         state = self.gateway.core.state

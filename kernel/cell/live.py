@@ -35,16 +35,19 @@ EARLY_WAKE_NS = 200_000
 async def run_live(manifest: Manifest, journal_dir: Path | None,
                    progress: CycleProgress | None = None) -> dict[str, Any]:
     context = open_run(manifest, MonotonicClock(), journal_dir, progress)
-    server = _policy_server(manifest, context.cell.policy_goal)
+    server: EmulatorProcess | None = None
     realtime = try_realtime()
     log.info("scheduling", detail=realtime.summary())
     failures: list[str] = []
     try:
+        await bring_up(context)  # a device that is not there fails here, before anything runs
+        server = _policy_server(manifest, context.cell.policy_goal)
         client = RobotClient(ClientConfig(url=_url(manifest, server)), context.cell.gateway)
         context.cell.gateway.listeners.append(client.notify)
         await _supervise(context, client, progress, failures)
     finally:
         await context.cell.driver.aclose()
+        context.cell.world.close()
         restore(realtime)
         if server is not None:
             server.stop()
@@ -70,7 +73,6 @@ async def _supervise(context: RunContext, client: RobotClient,
         await client.run()
 
     async def control(started) -> None:  # type: ignore[no-untyped-def]
-        await bring_up(context)
         # Everything allocated so far lives for the whole run: keep it out of the collector's
         # way, so a full collection does not pause the control loop for 100 ms.
         gc.collect()

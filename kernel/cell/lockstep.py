@@ -13,12 +13,15 @@ from kernel.cell.build import offer_for, policy_model
 from kernel.cell.local_policy import LocalPolicyConfig, LocalPolicyLink
 from kernel.cell.report import CycleProgress
 from kernel.cell.session import bring_up, finish, open_run, report_progress
-from kernel.manifest import Manifest
+from kernel.manifest import Manifest, ManifestError
 from kernel.shell.timer import VirtualClock
 
 
 async def run_lockstep(manifest: Manifest, journal_dir: Path | None,
                        progress: CycleProgress | None = None) -> dict[str, Any]:
+    if manifest.driver_name != "sim":
+        raise ManifestError(f"{manifest.path}: cell.clock: a virtual clock needs the in-process "
+                            f"plant (driver 'sim'); {manifest.driver_name!r} runs in real time")
     clock = VirtualClock()
     context = open_run(manifest, clock, journal_dir, progress)
     cell = context.cell
@@ -39,6 +42,7 @@ async def run_lockstep(manifest: Manifest, journal_dir: Path | None,
             clock.advance(period)
     finally:
         await cell.driver.aclose()
+        cell.world.close()
         context.recorder.flush()
         context.files.close()
     timed_out = not cell.controller.finished

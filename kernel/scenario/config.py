@@ -106,6 +106,9 @@ def _position_limits(
     upper = _pad_gripper(upper, dim, grip, math.inf)
     if len(lower) != dim or len(upper) != dim:
         raise here.error(f"has {len(lower)} entries, the robot has {dim} dimensions")
+    for index, (low, high) in enumerate(zip(lower, upper, strict=True)):
+        if low > high:
+            raise here.at(index).error(f"lower limit {low} exceeds upper limit {high}")
     return np.array(lower), np.array(upper)
 
 

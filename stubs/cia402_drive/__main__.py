@@ -19,6 +19,7 @@ from typing import Any
 from stubs.cia402_drive.emulator import DriveEmulator, EmulatorConfig, encoders_for
 from stubs.fault_control import FaultControlServer
 from stubs.plant.base import Plant
+from stubs.plant.world_port import world_handlers
 
 
 def _ints(text: str) -> tuple[int, ...]:
@@ -61,6 +62,7 @@ def main(argv: list[str] | None = None) -> int:
     emulator = DriveEmulator(config, make_plant(args.plant)).start()
     gc.freeze()  # object dictionaries and the plant live forever: keep full GC passes short
     handlers = {name: _handler(emulator, name) for name in emulator.faults}
+    handlers.update(world_handlers(emulator.plant, emulator.lock))
     faults = FaultControlServer("127.0.0.1", args.fault_port, handlers).start()
     stop = threading.Event()
     for signum in (signal.SIGTERM, signal.SIGINT):

@@ -25,6 +25,7 @@ from stubs.dynamixel_bus.plant_link import PlantLink
 from stubs.fault_control import FaultControlServer
 from stubs.plant.base import KinematicPlant, Plant
 from stubs.plant.realtime import RealtimeStepper
+from stubs.plant.world_port import world_handlers
 
 BAUD_CODES = {
     9600: 0, 57600: 1, 115200: 2, 1_000_000: 3, 2_000_000: 4, 3_000_000: 5, 4_000_000: 6,
@@ -124,7 +125,8 @@ def main(argv: list[str] | None = None) -> int:
     bus = Bus(servos, PlantLink(stepper, args.ids), fast_sync_read=not args.no_fast_sync_read)
     bus.power_on()
     server = PtyServer(bus, args.baud)
-    faults = FaultControlServer("127.0.0.1", args.fault_port, bus.fault_handlers())
+    handlers = {**bus.fault_handlers(), **world_handlers(plant, stepper.lock)}
+    faults = FaultControlServer("127.0.0.1", args.fault_port, handlers)
     for signum in (signal.SIGTERM, signal.SIGINT):
         signal.signal(signum, lambda *_: server.stop.set())
     stepper.start()

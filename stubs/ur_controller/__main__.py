@@ -16,6 +16,7 @@ import threading
 
 from stubs.fault_control import FaultControlServer
 from stubs.plant.base import KinematicPlant, Plant
+from stubs.plant.world_port import world_handlers
 from stubs.ur_controller.controller import (
     DASHBOARD_PORT,
     RTDE_PORT,
@@ -77,7 +78,9 @@ def main(argv: list[str] | None = None) -> int:
     controller = URController(ControllerConfig(args.host, args.version), plant)
     try:
         controller.start()
-        control = FaultControlServer(args.host, args.control_port, controller.fault_handlers())
+        handlers = {**controller.fault_handlers(),
+                    **world_handlers(plant, controller.stepper.lock)}
+        control = FaultControlServer(args.host, args.control_port, handlers)
     except OSError as error:
         print(f"ur_controller: cannot listen on {args.host}: {error}", file=sys.stderr)
         controller.stop()

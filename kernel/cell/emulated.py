@@ -1,0 +1,141 @@
+"""The cell through a real vendor driver: the device is an emulator process with the MuJoCo
+plant behind it, reached over the driver's real transport.
+
+One launcher per driver name says how to start that driver's emulator and which settings the
+driver then needs (the emulator's address); everything else comes from the manifest's
+``[driver]`` table. The evaluator's ground truth and the parts feeder go over the emulator's
+test-only control port (see :mod:`stubs.plant.world_port`), never over the robot protocol.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Any
+
+from drivers import registry
+from drivers.base import Driver
+from drivers.settings import SettingsError
+from kernel.manifest import Manifest, ManifestError
+from stubs.fault_control import inject
+from stubs.process import EmulatorProcess
+
+
+@dataclass(frozen=True, slots=True)
+class Launch:
+    module: str
+    args: tuple[str, ...]
+    settings: Callable[[Mapping[str, Any]], dict[str, Any]]
+    """Driver settings that depend on the emulator's READY information."""
+    control_host: Callable[[Mapping[str, Any]], str]
+
+
+def _ur(manifest: Manifest, plant: str) -> Launch:
+    from stubs.ur_controller.launch import free_loopback_host
+
+    host = str(manifest.emulator.get("host") or free_loopback_host())
+    return Launch("stubs.ur_controller", ("--host", host, "--plant", plant),
+                  lambda ready: {"host": ready["host"]}, lambda ready: ready["host"])
+
+
+def _dynamixel(manifest: Manifest, plant: str) -> Launch:
+    ids = manifest.driver_settings.get("ids", (1, 2, 3, 4, 5, 6))
+    baud = manifest.driver_settings.get("baud", 1_000_000)
+    return Launch("stubs.dynamixel_bus",
+                  ("--ids", ",".join(map(str, ids)), "--baud", str(baud), "--plant", plant),
+                  lambda ready: {"port": ready["port"]}, lambda _: "127.0.0.1")
+
+
+def _canopen(manifest: Manifest, plant: str) -> Launch:
+    from stubs.cia402_drive.testbed import unique_udp_bus
+
+    group, port = unique_udp_bus()
+    table = manifest.driver_settings
+    nodes = table.get("node_ids", (1, 2, 3, 4, 5, 6))
+    counts = table.get("counts_per_rev", (2**23,) * len(nodes))
+    args = ("--channel", group, "--port", str(port), "--nodes", ",".join(map(str, nodes)),
+            "--counts-per-rev", str(int(counts[0])), "--plant", plant)
+    return Launch("stubs.cia402_drive", args,
+                  lambda ready: {"interface": "udp_multicast", "channel": ready["channel"],
+                                 "udp_port": ready["port"]}, lambda _: "127.0.0.1")
+
+
+LAUNCHERS: dict[str, Callable[[Manifest, str], Launch]] = {
+    "ur_rtde": _ur,
+    "dynamixel": _dynamixel,
+    "canopen402": _canopen,
+}
+
+
+def driver_from_manifest(manifest: Manifest, table: Mapping[str, Any]) -> Driver:
+    """The manifest's driver, built through the registry; bad settings name the key."""
+    where = f"{manifest.path}: driver"
+    try:
+        return registry.load(manifest.driver_name).from_mapping(
+            table, where, name=manifest.driver_name)
+    except registry.UnknownDriver as error:
+        raise ManifestError(f"{where}.name: {error}") from None
+    except (SettingsError, ValueError) as error:
+        raise ManifestError(str(error)) from None
+
+
+class DeviceWorld:
+    """A real device: the driver only. Nothing here can see ground truth or feed parts."""
+
+    def __init__(self, manifest: Manifest) -> None:
+        self._driver = driver_from_manifest(manifest, manifest.driver_settings)
+
+    def driver(self) -> Driver:
+        return self._driver
+
+    def advance(self) -> None:
+        """The device moves in real time on its own."""
+
+    def insertion_depth(self) -> float:
+        return math.nan  # no independent evaluator on this cell: VERIFY cannot pass
+
+    def feed_peg(self) -> None:
+        """Parts are presented by the real cell."""
+
+    def close(self) -> None:
+        """The driver's aclose releases the device."""
+
+
+class EmulatorWorld:
+    def __init__(self, manifest: Manifest) -> None:
+        launcher = LAUNCHERS.get(manifest.driver_name)
+        if launcher is None:
+            raise ManifestError(f"{manifest.path}: driver.name: no emulator for "
+                                f"{manifest.driver_name!r} (known: sim, {', '.join(LAUNCHERS)})")
+        plant = str(manifest.emulator.get("plant", "mujoco"))
+        launch = launcher(manifest, plant)
+        self.process = EmulatorProcess(launch.module, *launch.args).start()
+        ready = self.process.info
+        port = ready.get("control_port", ready.get("fault_port"))
+        self.control = (launch.control_host(ready), int(port))
+        table = {**manifest.driver_settings, **launch.settings(ready)}
+        try:
+            self._driver = driver_from_manifest(manifest, table)
+        except ManifestError:
+            self.process.stop()
+            raise
+
+    def driver(self) -> Driver:
+        return self._driver
+
+    def advance(self) -> None:
+        """The emulator steps its own plant in real time."""
+
+    def insertion_depth(self) -> float:
+        return float(inject(self.control, "ground_truth")["insertion_depth"])
+
+    def feed_peg(self) -> None:
+        inject(self.control, "feed_peg")
+
+    def inject(self, fault: str, **fields: Any) -> dict[str, Any]:
+        """Switch an emulated device fault on (tests and fault campaigns)."""
+        return inject(self.control, fault, **fields)
+
+    def close(self) -> None:
+        self.process.stop()
