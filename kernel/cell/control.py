@@ -18,7 +18,7 @@ import numpy as np
 
 from assurance.fallback import Mode
 from assurance.reasons import ReasonCode
-from drivers.base import Applied, DriverState, StateSample
+from drivers.base import Applied, Command, DriverError, DriverState, StateSample
 from drivers.lifecycle import ManagedDriver
 from kernel.cell.motion import MotionController
 from kernel.cell.operator import SimulatedOperator
@@ -63,7 +63,7 @@ class CellController:
         self.runner.begin(self._cycle_started_ns)
 
     async def tick(self) -> None:
-        sample = await self.driver.read()
+        sample = await self._read()
         # Stamp after the read: while it awaited, the policy link may have fed the core a
         # later event, and the core only ever moves forward in time. Everything from here to
         # the write is synchronous, so the whole decision of this period shares one instant.
@@ -78,11 +78,25 @@ class CellController:
         if request is not None:
             self.gateway.feed(PhaseEvent(t=t, to=request.to, evidence=request.evidence))
         decision = self.gateway.tick(t)
-        applied = await self.driver.write(self.motion.command(decision, sensed))
+        applied = await self._write(self.motion.command(decision, sensed))
         self._count(applied)
         self.world.advance()
         self.counters.ticks += 1
         self._maybe_next_cycle(t)
+
+    async def _read(self) -> StateSample:
+        """A fresh sample, or (the driver just faulted) the last one, marked with the fault."""
+        try:
+            return await self.driver.read()
+        except DriverError:
+            return await self.driver.read()  # FAULT now: the lifecycle answers from its record
+
+    async def _write(self, command: Command) -> Applied | None:
+        """Send the command; a failing device is FAULT from now on, reported next tick."""
+        try:
+            return await self.driver.write(command)
+        except DriverError:
+            return None
 
     def _sense(self, sample: StateSample, t: int) -> Sensed:
         fresh = sample.seq != self._last_seq and bool(sample.q) and not sample.faults
@@ -108,8 +122,8 @@ class CellController:
         status = "estop" if reason is ReasonCode.E_STOP else "fault"
         self.gateway.feed(ControllerEvent(t=t, status=status))
 
-    def _count(self, applied: Applied) -> None:
-        if not applied.accepted:
+    def _count(self, applied: Applied | None) -> None:
+        if applied is None or not applied.accepted:
             self.counters.refused_writes += 1
 
     def _at_rest(self, s: Sensed) -> bool:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import asyncio
 import gc
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -32,8 +33,13 @@ EARLY_WAKE_NS = 200_000
 """Wake this long before each deadline and spin the rest (see notes/loop-timing.md)."""
 
 
+TickHook = Callable[[RunContext], bool]
+"""Called after every control tick (tests and fault campaigns); returning True ends the run."""
+
+
 async def run_live(manifest: Manifest, journal_dir: Path | None,
-                   progress: CycleProgress | None = None) -> dict[str, Any]:
+                   progress: CycleProgress | None = None,
+                   hook: TickHook | None = None) -> dict[str, Any]:
     context = open_run(manifest, MonotonicClock(), journal_dir, progress)
     server: EmulatorProcess | None = None
     realtime = try_realtime()
@@ -44,10 +50,11 @@ async def run_live(manifest: Manifest, journal_dir: Path | None,
         server = _policy_server(manifest, context.cell.policy_goal)
         client = RobotClient(ClientConfig(url=_url(manifest, server)), context.cell.gateway)
         context.cell.gateway.listeners.append(client.notify)
-        await _supervise(context, client, progress, failures)
+        await _supervise(context, client, progress, failures, hook)
     finally:
         await context.cell.driver.aclose()
         context.cell.world.close()
+        gc.unfreeze()  # let the collector see the run's objects again before the process ends
         restore(realtime)
         if server is not None:
             server.stop()
@@ -60,8 +67,8 @@ async def run_live(manifest: Manifest, journal_dir: Path | None,
     })
 
 
-async def _supervise(context: RunContext, client: RobotClient,
-                     progress: CycleProgress | None, failures: list[str]) -> None:
+async def _supervise(context: RunContext, client: RobotClient, progress: CycleProgress | None,
+                     failures: list[str], hook: TickHook | None) -> None:
     def failed(name: str, error: BaseException) -> None:
         failures.append(f"{name}: {type(error).__name__}")
         log.error("task failed", task=name, error=type(error).__name__)
@@ -79,8 +86,9 @@ async def _supervise(context: RunContext, client: RobotClient,
         gc.freeze()
         started()
         try:
-            await _control_loop(context, progress)
+            await _control_loop(context, progress, hook)
         finally:
+            context.cell.gateway.close()
             done.set()
 
     async with Supervisor(on_failure=failed) as supervisor:
@@ -93,7 +101,8 @@ async def _supervise(context: RunContext, client: RobotClient,
         await supervisor.shutdown()
 
 
-async def _control_loop(context: RunContext, progress: CycleProgress | None) -> None:
+async def _control_loop(context: RunContext, progress: CycleProgress | None,
+                        hook: TickHook | None) -> None:
     manifest, cell = context.manifest, context.cell
     period = manifest.core.control_period_ns
     budget_ns = round(manifest.cell.cycle_timeout_s * 1e9) * manifest.cell.cycles
@@ -106,6 +115,8 @@ async def _control_loop(context: RunContext, progress: CycleProgress | None) -> 
                 context.misses += max(1, tick.skipped)
             await cell.controller.tick()
             report_progress(context, progress)
+            if hook is not None and hook(context):
+                break
 
 
 def _policy_server(manifest: Manifest, goal: np.ndarray) -> EmulatorProcess | None:

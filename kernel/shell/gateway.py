@@ -33,11 +33,19 @@ class CoreGateway:
         self.recorder = recorder
         self.listeners: list[Listener] = []
         self.robot = RobotSample(q=core.state.measured_q.copy(), task_phase=core.state.task.phase)
+        self.closed = False
 
     def now_ns(self) -> int:
         return self.clock.now_ns() - self.t0_ns
 
+    def close(self) -> None:
+        """The run is over: nothing more is decided, journaled or reported (a link that says
+        goodbye afterwards is not a fallback of the run)."""
+        self.closed = True
+
     def feed(self, event: Event) -> list[Line]:
+        if self.closed:
+            return []
         lines = self.core.handle(event)
         if self.recorder is not None:
             self.recorder.event(event)

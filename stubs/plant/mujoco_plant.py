@@ -18,6 +18,11 @@ Beyond the protocol: ``reset(q, peg_in_gripper=True)`` starts with the peg alrea
 ``tcp_pose()``, ``tool_wrench()`` and ``peg_grasped()`` expose what the ground truth uses, and
 a physics blow-up raises :class:`PlantDiverged` instead of MuJoCo's silent reset.
 
+A gripped peg is held by static friction: MuJoCo's friction alone only damps slip and lets a
+held part drift in the pads as the arm moves, so after each ``step`` call the plant switches the
+grip between stick (a weld at the peg's pose in the gripper) and slip (friction), bounded by the
+grip's friction capacity; see :mod:`stubs.plant._stiction`.
+
 The wrist wrench is the wrench the environment applies to the tool (gripper, fingers and
 anything they hold), in the sensor frame (``ft_site``: z along the tool axis), with the static
 weight of the empty gripper removed, like a sensor tared with the empty gripper. A held peg's
@@ -37,6 +42,8 @@ import mujoco
 import numpy as np
 
 from stubs import robot_model as rm
+from stubs.plant._cell_index import CellIndex
+from stubs.plant._stiction import GraspStiction
 from stubs.plant.base import GroundTruth, PlantState
 
 _TIMESTEP_NS = 2_000_000
@@ -68,66 +75,6 @@ class MujocoPlantConfig:
     """Position commands further apart than this get no velocity feed-forward."""
     grasp_settle_steps: int = 100
     """Steps the grip is left to settle when ``reset`` places the peg between the pads."""
-
-
-@dataclass(frozen=True, slots=True, eq=False)
-class _CellIndex:
-    """Addresses into the compiled model; ``peg_qpos`` is None when the model has no cell.
-
-    The arm's joints, dofs and actuators are contiguous, so they are slices: numpy views
-    through slices are what keeps a command + step + state round trip cheap.
-    """
-
-    arm_qpos: slice
-    arm_dof: slice
-    arm_actuators: slice
-    lower: np.ndarray
-    upper: np.ndarray
-    gripper_actuator: int
-    gripper_tendon: int
-    force_adr: int
-    torque_adr: int
-    ft_site: int
-    tool_body: int
-    pad_geoms: tuple[int, int]
-    tcp_site: int
-    peg_qpos: int | None
-    peg_dof: int | None
-    peg_geom: int | None
-    hole_site: int | None
-
-    @classmethod
-    def of(cls, model: mujoco.MjModel) -> _CellIndex:
-        joints = [model.joint(name) for name in rm.ARM_JOINT_NAMES]
-        has_cell = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, rm.PEG_BODY) >= 0
-        peg_joint = int(model.body(rm.PEG_BODY).jntadr[0]) if has_cell else -1
-        return cls(
-            arm_qpos=_contiguous([j.qposadr[0] for j in joints], "arm joint qpos"),
-            arm_dof=_contiguous([j.dofadr[0] for j in joints], "arm joint dof"),
-            arm_actuators=_contiguous(
-                [model.actuator(n).id for n in rm.ARM_ACTUATOR_NAMES], "arm actuator"),
-            lower=np.array([j.range[0] for j in joints]),
-            upper=np.array([j.range[1] for j in joints]),
-            gripper_actuator=model.actuator(rm.GRIPPER_ACTUATOR_NAME).id,
-            gripper_tendon=model.tendon(rm.GRIPPER_TENDON_NAME).id,
-            force_adr=int(model.sensor("wrist_force").adr[0]),
-            torque_adr=int(model.sensor("wrist_torque").adr[0]),
-            ft_site=model.site(rm.FT_SITE).id,
-            tool_body=model.body(rm.TOOL_BODY).id,
-            pad_geoms=(model.geom(rm.PAD_GEOMS[0]).id, model.geom(rm.PAD_GEOMS[1]).id),
-            tcp_site=model.site(rm.TCP_SITE).id,
-            peg_qpos=int(model.jnt_qposadr[peg_joint]) if has_cell else None,
-            peg_dof=int(model.jnt_dofadr[peg_joint]) if has_cell else None,
-            peg_geom=model.geom(rm.PEG_GEOM).id if has_cell else None,
-            hole_site=model.site(rm.HOLE_SITE).id if has_cell else None,
-        )
-
-
-def _contiguous(addresses: Sequence[int], what: str) -> slice:
-    first = int(addresses[0])
-    if list(addresses) != list(range(first, first + len(addresses))):
-        raise ValueError(f"{what} addresses {list(addresses)} are not contiguous")
-    return slice(first, first + len(addresses))
 
 
 def _vector(values: Sequence[float], n: int, what: str) -> np.ndarray:
@@ -169,7 +116,8 @@ class MujocoPlant:
             raise ValueError(f"{self.config.model_path} has timestep {self.model.opt.timestep} s,"
                              " the plant runs at 0.002 s")
         self.data = mujoco.MjData(self.model)
-        self._ix = _CellIndex.of(self.model)
+        self._ix = CellIndex.of(self.model)
+        self._stiction = GraspStiction(self.model, self.data, self._ix)
         self._load_gains(self.config)
         self._bind_views()
         self.reset(q0)
@@ -213,9 +161,11 @@ class MujocoPlant:
         q_arm = _vector(rm.HOME_Q if q is None else q, self.dof, "reset q")
         _within(q_arm, self._ix.lower, self._ix.upper, "reset q")
         mujoco.mj_resetData(self.model, self.data)
+        self._stiction.release()
         self._q[:] = q_arm
         self._set_opening(rm.GRIPPER_MAX_OPENING)
         self.data.ctrl[self._ix.gripper_actuator] = rm.GRIPPER_MAX_OPENING
+        self._stiction.gripper_commanded(rm.GRIPPER_MAX_OPENING)
         self._t_ns = 0
         self._forget_command_stream()
         self._set_position_target(q_arm, None)
@@ -253,6 +203,7 @@ class MujocoPlant:
             raise ValueError(f"gripper opening {opening!r} m is outside "
                              f"[0, {rm.GRIPPER_MAX_OPENING}]")
         self.data.ctrl[self._ix.gripper_actuator] = value
+        self._stiction.gripper_commanded(value)
 
     def hold(self) -> None:
         """Hold the measured joint position, stiffly, from now on."""
@@ -341,6 +292,7 @@ class MujocoPlant:
         if any(self.data.warning[w].number for w in _DIVERGENCE_WARNINGS):
             raise PlantDiverged(f"MuJoCo reset the simulation at t={self._t_ns} ns: "
                                 "non-finite or huge position, velocity or acceleration")
+        self._stiction.after_step()
 
     def _apply(self, mode: ControlMode, kp: np.ndarray, kd: np.ndarray, ctrl: np.ndarray) -> None:
         self._bias_kp[:] = -kp
@@ -388,6 +340,7 @@ class MujocoPlant:
         mujoco.mju_mat2Quat(quat, (rotation @ np.diag([1.0, -1.0, -1.0])).ravel())
         self._set_opening(2 * rm.PEG_HALF_EXTENTS[0])
         self.data.ctrl[self._ix.gripper_actuator] = 0.0
+        self._stiction.gripper_commanded(0.0)
         # Pin the peg at the grasp pose while the pads close and settle: letting it go at the
         # first touch kicks it up to a millimetre along the pads, more than the hole's
         # clearance. Once the grip force has built up, friction alone holds it.
@@ -397,7 +350,21 @@ class MujocoPlant:
             self.data.qpos[q_adr + 3:q_adr + 7] = quat
             self.data.qvel[v_adr:v_adr + 6] = 0.0
             mujoco.mj_step(self.model, self.data)
+        self._stiction.stick()
         self.data.time = 0.0
+
+    def respawn_peg(self) -> None:
+        """The cell's feeder: put a peg back at its start pose, at rest (the arm is untouched).
+
+        Only ever called between cycles, with the gripper open and away from the peg.
+        """
+        if self._ix.peg_qpos is None:
+            raise ValueError(f"{self.config.model_path} has no peg to respawn")
+        self._stiction.release()
+        q_adr, v_adr = self._ix.peg_qpos, self._ix.peg_dof
+        self.data.qpos[q_adr:q_adr + 7] = self.model.qpos0[q_adr:q_adr + 7]
+        self.data.qvel[v_adr:v_adr + 6] = 0.0
+        mujoco.mj_forward(self.model, self.data)
 
     def _peg_pose(self) -> tuple[np.ndarray, np.ndarray]:
         """Peg centre and long axis (its body z), from the current qpos."""

@@ -20,7 +20,9 @@ def world_handlers(plant: Plant, lock: AbstractContextManager[Any] | threading.L
     def ground_truth(_: dict[str, Any]) -> dict[str, Any]:
         with lock:
             truth = plant.ground_truth()
-        return {"insertion_depth": truth.insertion_depth, "peg_grasped": truth.peg_grasped}
+            q = plant.state().q
+        return {"insertion_depth": truth.insertion_depth, "peg_grasped": truth.peg_grasped,
+                "q": list(q)}
 
     def feed_peg(_: dict[str, Any]) -> None:
         respawn = getattr(plant, "respawn_peg", None)

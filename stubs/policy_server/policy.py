@@ -46,8 +46,9 @@ class InsertionPolicy:
     horizon: int
     action_dt_s: float
     max_acceleration: float | None = None
-    """rad/s² per joint. None: the policy jumps to full speed at once (a crude policy); set,
-    it starts from the observed velocity and speeds up and brakes smoothly, as a policy
+    """rad/s² per joint. None: the policy jumps to full speed at once, every joint on its own
+    (a crude policy); set, all joints move together along a straight joint-space line,
+    starting from the observed velocity and speeding up and braking smoothly, as a policy
     trained on smooth demonstrations does."""
 
     def __post_init__(self) -> None:
@@ -76,21 +77,25 @@ class InsertionPolicy:
         return path + noise
 
     def _accelerated(self, q0: np.ndarray, v0: np.ndarray, times: np.ndarray) -> np.ndarray:
-        """Each joint heads for the goal at bounded speed and acceleration, braking to arrive."""
-        a, vmax = float(self.max_acceleration or 0.0), self.max_speed
-        q, v, t = q0.astype(float).copy(), np.clip(v0, -vmax, vmax), 0.0
-        out = np.empty((times.shape[0], q0.shape[0]))
+        """All joints together along the straight joint-space line to the goal, speeding up
+        and braking within ``max_speed`` and ``max_acceleration`` for the joint that has
+        furthest to go: the tool sweeps no arc past the goal on the way in."""
+        span = self.goal - q0
+        reach = float(np.abs(span).max())
+        if reach < 1e-12:
+            return np.broadcast_to(self.goal, (times.shape[0], q0.shape[0])).copy()
+        direction = span / reach  # the furthest joint moves 1 rad per unit of progress
+        vmax, a = self.max_speed, float(self.max_acceleration or 0.0)
+        s, v, t = 0.0, float(np.clip(v0 @ direction / (direction @ direction), 0.0, vmax)), 0.0
+        progress = np.empty(times.shape[0])
         for row, until in enumerate(times):
             while t < until - 1e-12:
                 h = min(_SUBSTEP_S, until - t)
-                gap = self.goal - q
-                wanted = np.sign(gap) * np.minimum(vmax, np.sqrt(2.0 * a * np.abs(gap)))
-                v = v + np.clip(wanted - v, -a * h, a * h)
-                step = v * h
-                q = np.where(np.abs(step) >= np.abs(gap), self.goal, q + step)
-                t += h
-            out[row] = q
-        return out
+                wanted = min(vmax, np.sqrt(2.0 * a * max(reach - s, 0.0)))
+                v = v + float(np.clip(wanted - v, -a * h, a * h))
+                s, t = min(s + v * h, reach), t + h
+            progress[row] = s
+        return q0 + progress[:, None] * direction
 
 
 _SUBSTEP_S = 0.002

@@ -27,7 +27,7 @@ LIMITS = MotionLimits(
     jerk=np.array([40.0, 40.0, 60.0, 80.0, 80.0, 80.0]),
 )
 SLACK = 1e-6  # ruckig meets its limits to floating-point precision
-SETTLED = 1e-8  # ruckig reaches targets to about this (its own position precision)
+SETTLED = 1e-7  # ruckig reaches targets to about 1e-8 (its own position precision)
 
 
 def positions(lower: float = -3.0, upper: float = 3.0) -> st.SearchStrategy[np.ndarray]:

@@ -1,0 +1,29 @@
+"""Manifests for cell tests: the shipped ones, with a test's overrides and a temp journal."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+from kernel.manifest import ClockKind, Manifest, load_manifest
+from kernel.replay import replay_bytes
+from kernel.scenario import load_scenario
+
+MANIFESTS = Path(__file__).resolve().parents[2] / "manifests"
+
+
+def manifest(name: str, cycles: int = 1, clock: ClockKind | None = None) -> Manifest:
+    loaded = load_manifest(MANIFESTS / name)
+    cell = dataclasses.replace(loaded.cell, cycles=cycles, clock=clock or loaded.cell.clock)
+    return dataclasses.replace(loaded, cell=cell)
+
+
+def run_dir(journal_root: Path) -> Path:
+    (directory,) = [p for p in journal_root.iterdir() if p.is_dir()]
+    return directory
+
+
+def replays_identically(directory: Path) -> bool:
+    """The journal of a run, replayed, gives the run's decision log byte for byte."""
+    replayed = replay_bytes(load_scenario(directory / "journal.jsonl"))
+    return replayed == (directory / "decisions.jsonl").read_bytes()
