@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed-stamp
 
-.PHONY: run test lint bench clean
+.PHONY: run test lint bench replay clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -12,6 +12,9 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 run: $(STAMP)
+	$(BIN)/warden run
+
+replay: $(STAMP)
 	$(BIN)/warden replay manifests/scenarios/seed_stale_chunk.json --pretty
 
 test: $(STAMP)
@@ -22,6 +25,10 @@ lint: $(STAMP)
 
 bench: $(STAMP)
 	$(BIN)/python bench/admission.py
+	$(BIN)/python bench/loop.py
+	$(BIN)/python bench/e2e.py
+	$(BIN)/python bench/kinematics.py
+	$(BIN)/python bench/drivers.py
 
 clean:
 	rm -rf $(VENV) build *.egg-info .pytest_cache .hypothesis
