@@ -3,6 +3,7 @@
     warden replay SCENARIO [--out FILE] [--pretty] [--check]
     warden run [MANIFEST] [--cycles N] [--clock wall|virtual] [--json FILE]
     warden serve-policy [server options]
+    warden manifest keygen|sign|verify ...
 
 Exit codes: 0 the command ran (a refused chunk is a result, not an error); 1 ``--check`` found
 a broken expectation; 2 invalid input (the message names the file, the place and the field).
@@ -17,6 +18,7 @@ from collections.abc import Sequence
 import msgspec
 
 from drivers.base import DriverError
+from kernel import signing
 from kernel.cli_run import add_commands
 from kernel.core.lines import encode
 from kernel.replay import as_dict, check_expectations, replay
@@ -59,6 +61,7 @@ def _parser() -> argparse.ArgumentParser:
                      help="verify the scenario's 'expect'/'forbid' matchers (exit 1 if broken)")
     rep.set_defaults(handler=_replay)
     add_commands(commands)
+    signing.add_commands(commands)
     return parser
 
 

@@ -59,6 +59,9 @@ class CellSettings:
     cycle_timeout_s: float = 30.0
     insertion_tolerance_m: float = 0.015
     """The evaluator's bar: peg depth below the fixture's top face that counts as inserted."""
+    simulated_operator: bool = True
+    """Accept recovery automatically once the arm rests under a fallback owner. Simulation
+    only: a manifest that drives a real device must set it false (a human recovers)."""
 
 
 @dataclass(frozen=True, slots=True)

@@ -6,6 +6,7 @@ what the parent needs (ports, pty path). Anything else the child prints goes to 
 
 from __future__ import annotations
 
+import ctypes
 import json
 import os
 import select
@@ -14,6 +15,19 @@ import subprocess
 import sys
 import time
 from typing import Any
+
+
+_PR_SET_PDEATHSIG = 1
+
+
+def _die_with_parent() -> None:
+    """In the child, before exec: get SIGTERM when the parent dies, however it dies.
+
+    The child runs in its own session (so ``stop`` can signal its whole group); without this a
+    parent killed outright would leave an emulator running, holding its ports.
+    """
+    libc = ctypes.CDLL(None, use_errno=True)
+    libc.prctl(_PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0)
 
 
 class EmulatorProcess:
@@ -32,7 +46,7 @@ class EmulatorProcess:
     def start(self) -> EmulatorProcess:
         self._proc = subprocess.Popen(
             self.command, stdout=subprocess.PIPE, stderr=None, start_new_session=True,
-            env={**os.environ, "PYTHONUNBUFFERED": "1"},
+            env={**os.environ, "PYTHONUNBUFFERED": "1"}, preexec_fn=_die_with_parent,
         )
         self.info = self._wait_ready()
         return self

@@ -85,7 +85,8 @@ def build_cell(manifest: Manifest, clock: Clock, recorder: Recorder | None) -> C
     motion = MotionController(interpolator_limits, layout.home_q, runner, contact, period,
                               impedance)
     driver = ManagedDriver(world.driver())
-    controller = CellController(gateway, driver, world, runner, motion, SimulatedOperator(),
+    operator = SimulatedOperator(enabled=manifest.cell.simulated_operator)
+    controller = CellController(gateway, driver, world, runner, motion, operator,
                                 manifest.cell.cycles)
     staging = planner.solve(layout.home_q, layout.staging_tcp)
     goal = planner.solve(staging, layout.pre_insert_tcp)
@@ -100,6 +101,9 @@ def _world(manifest: Manifest, period_ns: int) -> World:
                                 "takes no settings)")
         return SimWorld(period_ns)
     if manifest.emulator.get("launch", True) is False:
+        if manifest.cell.simulated_operator:
+            raise ManifestError(f"{manifest.path}: cell.simulated_operator: must be false when "
+                                "driving a real device (only a human accepts recovery)")
         return DeviceWorld(manifest)
     return EmulatorWorld(manifest)
 

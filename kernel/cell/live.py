@@ -9,8 +9,10 @@ degrades, the link is restarted and must handshake again).
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import gc
-from collections.abc import Callable
+import signal
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -25,6 +27,7 @@ from kernel.shell.client import RobotClient
 from kernel.shell.link_types import ClientConfig
 from kernel.shell.realtime import restore, try_realtime
 from kernel.shell.supervisor import RestartPolicy, Supervisor
+from kernel.shell.systemd import ServiceNotifier
 from kernel.shell.timer import MonotonicClock, PeriodicTimer
 from stubs.process import EmulatorProcess
 
@@ -44,18 +47,23 @@ async def run_live(manifest: Manifest, journal_dir: Path | None,
     server: EmulatorProcess | None = None
     realtime = try_realtime()
     log.info("scheduling", detail=realtime.summary())
+    service = ServiceNotifier.from_env()
     failures: list[str] = []
     try:
         await bring_up(context)  # a device that is not there fails here, before anything runs
         server = _policy_server(manifest, context.cell.policy_goal)
         client = RobotClient(ClientConfig(url=_url(manifest, server)), context.cell.gateway)
         context.cell.gateway.listeners.append(client.notify)
-        await _supervise(context, client, progress, failures, hook)
+        loop = _Loop(context, progress, hook, service, realtime.summary())
+        with _stop_on_signals(loop):
+            await _supervise(context, client, loop, failures)
     finally:
+        service.stopping("holding the arm and closing the device")
         await context.cell.driver.aclose()
         context.cell.world.close()
         gc.unfreeze()  # let the collector see the run's objects again before the process ends
         restore(realtime)
+        service.close()
         if server is not None:
             server.stop()
         context.recorder.flush()
@@ -64,11 +72,51 @@ async def run_live(manifest: Manifest, journal_dir: Path | None,
         "clock": "wall", "timed_out": not context.cell.controller.finished,
         "task_failures": failures, "loop": {"realtime": realtime.summary()},
         "link": {k: v for k, v in client.counters.snapshot().items() if v},
+        "service": {"notify": service.enabled, "sent": service.stats.sent,
+                    "failed": service.stats.failed},
     })
 
 
-async def _supervise(context: RunContext, client: RobotClient, progress: CycleProgress | None,
-                     failures: list[str], hook: TickHook | None) -> None:
+class _Loop:
+    """The control loop and what it reports: progress, the tick hook, the service manager."""
+
+    def __init__(self, context: RunContext, progress: CycleProgress | None,
+                 hook: TickHook | None, service: ServiceNotifier, scheduling: str) -> None:
+        self.context, self.progress, self.hook = context, progress, hook
+        self.service, self.scheduling = service, scheduling
+        self.stop_requested = False
+        self._status = ""
+
+    async def run(self) -> None:
+        manifest, cell = self.context.manifest, self.context.cell
+        period = manifest.core.control_period_ns
+        budget_ns = round(manifest.cell.cycle_timeout_s * 1e9) * manifest.cell.cycles
+        cell.controller.start()
+        async with PeriodicTimer(period, early_ns=EARLY_WAKE_NS) as timer:
+            while not (cell.controller.finished or self.stop_requested) and (
+                    cell.gateway.now_ns() < budget_ns):
+                tick = await timer.wait()
+                self.context.lateness_ns.append(tick.lateness_ns)
+                if tick.skipped or tick.lateness_ns > period // 2:
+                    self.context.misses += max(1, tick.skipped)
+                await cell.controller.tick()
+                self.service.alive()  # only a loop that completes its ticks feeds the watchdog
+                self._report()
+                if self.hook is not None and self.hook(self.context):
+                    break
+
+    def _report(self) -> None:
+        report_progress(self.context, self.progress)
+        cell = self.context.cell
+        status = (f"cycle {min(len(cell.controller.results) + 1, cell.controller.cycles)}: "
+                  f"{cell.controller.runner.step} ({cell.core.state.fallback.mode})")
+        if status != self._status:
+            self._status = status
+            self.service.status(status)
+
+
+async def _supervise(context: RunContext, client: RobotClient, loop: _Loop,
+                     failures: list[str]) -> None:
     def failed(name: str, error: BaseException) -> None:
         failures.append(f"{name}: {type(error).__name__}")
         log.error("task failed", task=name, error=type(error).__name__)
@@ -85,8 +133,10 @@ async def _supervise(context: RunContext, client: RobotClient, progress: CyclePr
         gc.collect()
         gc.freeze()
         started()
+        loop.service.ready(f"{context.manifest.name}: {context.manifest.driver_name} ready; "
+                           f"{loop.scheduling}")
         try:
-            await _control_loop(context, progress, hook)
+            await loop.run()
         finally:
             context.cell.gateway.close()
             done.set()
@@ -101,22 +151,23 @@ async def _supervise(context: RunContext, client: RobotClient, progress: CyclePr
         await supervisor.shutdown()
 
 
-async def _control_loop(context: RunContext, progress: CycleProgress | None,
-                        hook: TickHook | None) -> None:
-    manifest, cell = context.manifest, context.cell
-    period = manifest.core.control_period_ns
-    budget_ns = round(manifest.cell.cycle_timeout_s * 1e9) * manifest.cell.cycles
-    cell.controller.start()
-    async with PeriodicTimer(period, early_ns=EARLY_WAKE_NS) as timer:
-        while not cell.controller.finished and cell.gateway.now_ns() < budget_ns:
-            tick = await timer.wait()
-            context.lateness_ns.append(tick.lateness_ns)
-            if tick.skipped or tick.lateness_ns > period // 2:
-                context.misses += max(1, tick.skipped)
-            await cell.controller.tick()
-            report_progress(context, progress)
-            if hook is not None and hook(context):
-                break
+@contextlib.contextmanager
+def _stop_on_signals(loop: _Loop) -> Iterator[None]:
+    """SIGTERM (systemctl stop) and SIGINT end the run through the normal path: the loop
+    finishes its tick, the arm is held and the device closed, the journal flushed."""
+    event_loop = asyncio.get_running_loop()
+    signals = (signal.SIGTERM, signal.SIGINT)
+
+    def request_stop() -> None:
+        loop.stop_requested = True
+
+    for signum in signals:
+        event_loop.add_signal_handler(signum, request_stop)
+    try:
+        yield
+    finally:
+        for signum in signals:
+            event_loop.remove_signal_handler(signum)
 
 
 def _policy_server(manifest: Manifest, goal: np.ndarray) -> EmulatorProcess | None:

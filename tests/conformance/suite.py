@@ -25,7 +25,9 @@ class Harness:
     control: ControlConfig
     inject: Callable[[str], None]
     """Switch a named fault on in the emulator."""
-    expected_reason: dict[str, ReasonCode]
+    expected_reason: dict[str, ReasonCode | frozenset[ReasonCode]]
+    """The reason each fault must map to; a set where the device's own detection order is a
+    race (a socket closed under load is seen as gone, or first as silent)."""
     advance: Callable[[float], Awaitable[None]]
     """Let ``seconds`` of device time pass (a real sleep, or plant steps in lockstep)."""
     hold_tolerance: float = 0.01
@@ -125,9 +127,11 @@ class DriverConformance:
             harness.inject(fault_name)
             await _until_fault(driver, harness)
             assert driver.state is DriverState.FAULT
-            assert driver.fault is harness.expected_reason[fault_name]
+            expected = harness.expected_reason[fault_name]
+            allowed = expected if isinstance(expected, frozenset) else frozenset({expected})
+            assert driver.fault in allowed, (driver.fault, driver.fault_detail)
             sample = await driver.read()
-            assert harness.expected_reason[fault_name] in sample.faults
+            assert driver.fault in sample.faults
             refused = await driver.write(Command(kind=CommandKind.POSITION, q=sample.q))
             assert not refused.accepted
         finally:
