@@ -16,7 +16,6 @@ import sys
 import time
 from typing import Any
 
-
 _PR_SET_PDEATHSIG = 1
 
 
