@@ -105,10 +105,10 @@ TIME_FIELDS = (
 DURATION_FIELDS = ("action_dt", "max_observation_age", "max_action_age")
 
 
-@dataclass(frozen=True, slots=True, eq=False)
-class Chunk:
+class Chunk(msgspec.Struct, frozen=True, kw_only=True, eq=False):
     """A structurally valid chunk. Times are ns in ``clock_domain``; ``None`` when absent or
-    non-finite (the name of each non-finite field is in ``nonfinite``)."""
+    non-finite (the name of each non-finite field is in ``nonfinite``). A Struct rather than a
+    dataclass because it is built once per arrival on the admission path (a C constructor)."""
 
     chunk_id: str
     sequence: int
@@ -123,14 +123,15 @@ class Chunk:
     observation_id: str
     clock_domain: str
     client_receive: int
-    times: Mapping[str, int | None]
+    times: dict[str, int | None]
     replacement_policy: ReplacementPolicy
     fallback_id: str | None
     phase_markers: tuple[int, ...]
     action_units: str | None
     action_frame: str | None
     fingerprint_q: tuple[float, ...] | None
-    actions: np.ndarray
+    actions: Any
+    """H x D float64, read-only (numpy; a Struct field holds any object)."""
     nonfinite: tuple[str, ...]
     payload_hash: str
 

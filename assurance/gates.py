@@ -179,7 +179,9 @@ def divergence(chunk: Chunk, ctx: AdmissionContext, first_due: int | None) -> fl
     mask = ctx.limits.arm_mask
     if chunk.actions.shape[1] != mask.shape[0] or ctx.measured_q.shape != mask.shape:
         return 0.0
-    diff = np.abs(chunk.actions[index] - ctx.measured_q)[mask]
+    diff = np.abs(chunk.actions[index] - ctx.measured_q)
+    if ctx.limits.gripper_index is not None:
+        diff = diff[mask]
     return float(diff.max()) if diff.size else 0.0
 
 

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -36,18 +36,22 @@ class JointLimits:
             raise ValueError(f"gripper_index {self.gripper_index} outside 0..{n - 1}")
         for name in ("lower", "upper", "velocity", "acceleration"):
             getattr(self, name).setflags(write=False)
+        mask = np.ones(n, dtype=bool)
+        if self.gripper_index is not None:
+            mask[self.gripper_index] = False
+        mask.setflags(write=False)
+        object.__setattr__(self, "_arm_mask", mask)
 
     @property
     def dim(self) -> int:
         return int(self.lower.shape[0])
 
+    _arm_mask: np.ndarray = field(init=False, repr=False)
+
     @property
     def arm_mask(self) -> np.ndarray:
-        """True for every dimension that is a joint (not the gripper)."""
-        mask = np.ones(self.dim, dtype=bool)
-        if self.gripper_index is not None:
-            mask[self.gripper_index] = False
-        return mask
+        """True for every dimension that is a joint (not the gripper); read-only."""
+        return self._arm_mask
 
     def clip(self, q: np.ndarray) -> np.ndarray:
         return np.clip(q, self.lower, self.upper)

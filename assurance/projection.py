@@ -70,13 +70,69 @@ def max_step_toward(room: float, acc: float) -> float:
     return (room + acc * m * (m + 1) / 2.0) / (m + 1)
 
 
+@dataclass(frozen=True, slots=True, eq=False)
+class _Bounds:
+    """The limits on one action grid, in step units, computed once per (limits, dt)."""
+
+    lower: np.ndarray
+    upper: np.ndarray
+    v_step: np.ndarray
+    a_step: np.ndarray
+    a_finite: np.ndarray
+    """``a_step`` with 0 where unbounded: the braking reach of such a joint is 0."""
+    inv_a: np.ndarray
+    """1/``a_step``, 0 where unbounded."""
+    arm: np.ndarray
+    all_arm: bool
+    """No gripper dimension: no masking needed."""
+    inner_lower: np.ndarray
+    inner_upper: np.ndarray
+    """Between these, no admissible step can reach a limit even while braking: the position
+    and braking checks can be skipped (the usual case, far from the joint limits)."""
+
+
+_bounds_cache: dict[tuple[int, float], tuple[JointLimits, _Bounds]] = {}
+
+
+def _bounds(limits: JointLimits, dt_s: float) -> _Bounds:
+    key = (id(limits), dt_s)
+    cached = _bounds_cache.get(key)
+    if cached is not None and cached[0] is limits:
+        return cached[1]
+    with np.errstate(invalid="ignore"):  # infinite limits: NaN bands simply never match
+        bounds = _derive_bounds(limits, dt_s)
+    if len(_bounds_cache) > 64:  # a handful of (limits, dt) pairs in any real run
+        _bounds_cache.clear()
+    _bounds_cache[key] = (limits, bounds)
+    return bounds
+
+
+def _derive_bounds(limits: JointLimits, dt_s: float) -> _Bounds:
+    a_step = limits.acceleration * dt_s * dt_s
+    v_step = limits.velocity * dt_s
+    finite = np.isfinite(a_step)
+    a_finite = np.where(finite, a_step, 0.0)
+    inv_a = np.divide(1.0, a_step, out=np.zeros_like(a_step), where=finite)
+    # The furthest any admissible step (at most v_step) can carry a joint, braking included.
+    m = np.floor(v_step * inv_a)
+    margin = np.where(np.isfinite(v_step), v_step + m * v_step - a_finite * m * (m + 1) / 2,
+                      np.inf)
+    return _Bounds(
+        lower=limits.lower - _EPS, upper=limits.upper + _EPS, v_step=v_step, a_step=a_step,
+        a_finite=a_finite, inv_a=inv_a, arm=limits.arm_mask,
+        all_arm=bool(limits.arm_mask.all()),
+        inner_lower=limits.lower + margin, inner_upper=limits.upper - margin,
+    )
+
+
 def project(
     actions: np.ndarray, reference: Reference, dt_s: float, limits: JointLimits
 ) -> Projection:
     """Project ``actions`` (H×D) into the limits, starting from ``reference``."""
-    v_step = limits.velocity * dt_s
-    a_step = limits.acceleration * dt_s * dt_s
-    violating = _violations(actions, reference, v_step, a_step, limits)
+    bounds = _bounds(limits, dt_s)
+    if not actions.size or _feasible(actions, reference, bounds):
+        return Projection(actions, np.zeros(actions.shape[0]), True)
+    violating = _violations(actions, reference, bounds)
     projected = actions.copy()
     recoverable = True
     for joint in np.flatnonzero(violating.any(axis=0)):
@@ -85,27 +141,59 @@ def project(
                     out=projected[:, joint])
             continue
         first = int(np.argmax(violating[:, joint]))
-        recoverable &= _project_joint(projected, joint, first, reference, v_step, a_step, limits)
-    distances = np.abs(projected - actions).max(axis=1) if actions.size else np.zeros(0)
+        recoverable &= _project_joint(projected, joint, first, reference, bounds.v_step,
+                                      bounds.a_step, limits)
+    distances = np.abs(projected - actions).max(axis=1)
     projected.setflags(write=False)
     return Projection(projected, distances, recoverable)
 
 
-def _violations(
-    actions: np.ndarray, ref: Reference, v_step: np.ndarray, a_step: np.ndarray,
-    limits: JointLimits,
-) -> np.ndarray:
+def _steps(actions: np.ndarray, ref: Reference) -> tuple[np.ndarray, np.ndarray]:
+    """Each action's step from the one before, and each step's change from the one before."""
+    steps = np.empty_like(actions)
+    steps[0] = actions[0] - ref.q
+    np.subtract(actions[1:], actions[:-1], out=steps[1:])
+    changes = np.empty_like(actions)
+    changes[0] = steps[0] - ref.step
+    np.subtract(steps[1:], steps[:-1], out=changes[1:])
+    return steps, changes
+
+
+def _reach(steps: np.ndarray, b: _Bounds) -> np.ndarray:
+    """Signed braking reach of every step (0 for unbounded acceleration)."""
+    s = np.abs(steps)
+    m = np.floor(s * b.inv_a)
+    return np.copysign(m * s - b.a_finite * m * (m + 1.0) * 0.5, steps)
+
+
+def _feasible(actions: np.ndarray, ref: Reference, b: _Bounds) -> bool:
+    """One vectorized pass: does the proposal already satisfy every bound? (the common case)
+
+    Each numpy call costs microseconds on small arrays, so the common case is checked with as
+    few of them as possible: rates first, then positions against the inner band where no step
+    can reach a limit; only a proposal near its limits pays for the braking check.
+    """
+    steps, changes = _steps(actions, ref)
+    if not b.all_arm:
+        return not _violations(actions, ref, b).any()
+    if (np.abs(steps) > b.v_step + _EPS).any() or (np.abs(changes) > b.a_step + _EPS).any():
+        return False
+    if (actions > b.inner_lower).all() and (actions < b.inner_upper).all():
+        return True
+    if (actions < b.lower).any() or (actions > b.upper).any():
+        return False
+    ahead = actions + _reach(steps, b)
+    return not ((ahead > b.upper).any() or (ahead < b.lower).any())
+
+
+def _violations(actions: np.ndarray, ref: Reference, b: _Bounds) -> np.ndarray:
     """Boolean H×D: which entries break a bound, checked on the proposal as it stands."""
-    lower, upper = limits.lower - _EPS, limits.upper + _EPS
-    out = (actions < lower) | (actions > upper)
-    arm = limits.arm_mask
-    steps = np.diff(actions, axis=0, prepend=ref.q[np.newaxis, :])
-    changes = np.diff(steps, axis=0, prepend=ref.step[np.newaxis, :])
-    reach = braking_distance(steps, a_step)
-    ahead = actions + np.where(steps > 0, reach, -reach)
-    rate = (np.abs(steps) > v_step + _EPS) | (np.abs(changes) > a_step + _EPS)
-    rate |= (ahead > upper) | (ahead < lower)
-    out[:, arm] |= rate[:, arm]
+    out = (actions < b.lower) | (actions > b.upper)
+    steps, changes = _steps(actions, ref)
+    ahead = actions + _reach(steps, b)
+    rate = (np.abs(steps) > b.v_step + _EPS) | (np.abs(changes) > b.a_step + _EPS)
+    rate |= (ahead > b.upper) | (ahead < b.lower)
+    out[:, b.arm] |= rate[:, b.arm]
     return out
 
 
@@ -141,6 +229,4 @@ def check_sequence(
     actions: np.ndarray, reference: Reference, dt_s: float, limits: JointLimits
 ) -> bool:
     """True when ``actions`` already satisfy every bound (the test oracle for projection)."""
-    v_step = limits.velocity * dt_s
-    a_step = limits.acceleration * dt_s * dt_s
-    return not _violations(actions, reference, v_step, a_step, limits).any()
+    return not _violations(actions, reference, _bounds(limits, dt_s)).any()
