@@ -140,9 +140,11 @@ def project(
             np.clip(projected[:, joint], limits.lower[joint], limits.upper[joint],
                     out=projected[:, joint])
             continue
-        first = int(np.argmax(violating[:, joint]))
-        recoverable &= _project_joint(projected, joint, first, reference, bounds.v_step,
-                                      bounds.a_step, limits)
+        flags = violating[:, joint]
+        first = int(np.argmax(flags))
+        last = int(flags.shape[0] - 1 - np.argmax(flags[::-1]))
+        recoverable &= _project_joint(projected, joint, (first, last), reference,
+                                      bounds.v_step, bounds.a_step, limits)
     distances = np.abs(projected - actions).max(axis=1)
     projected.setflags(write=False)
     return Projection(projected, distances, recoverable)
@@ -198,10 +200,17 @@ def _violations(actions: np.ndarray, ref: Reference, b: _Bounds) -> np.ndarray:
 
 
 def _project_joint(
-    projected: np.ndarray, joint: int, first: int, ref: Reference,
+    projected: np.ndarray, joint: int, violations: tuple[int, int], ref: Reference,
     v_step: np.ndarray, a_step: np.ndarray, limits: JointLimits,
 ) -> bool:
-    """Exact sequential projection of one joint from row ``first`` on; False if unrecoverable."""
+    """Exact sequential projection of one joint from its first violating row on; False if the
+    start cannot be continued inside the limits.
+
+    Once the projected joint is back on the proposal (same position, same step) after the last
+    row that violated anything, the rest of the proposal is feasible as it stands and is left
+    untouched: a chunk that only needs a ramp-up from rest costs a few rows, not the horizon.
+    """
+    first, last = violations
     lo, hi = float(limits.lower[joint]), float(limits.upper[joint])
     vmax, acc = float(v_step[joint]), float(a_step[joint])
     column = projected[:, joint]
@@ -211,7 +220,11 @@ def _project_joint(
         p = float(column[first - 1])
         s = p - (float(column[first - 2]) if first >= 2 else float(ref.q[joint]))
     recoverable = True
+    original = column.copy()
+    start = float(ref.q[joint])
     for row in range(first, column.shape[0]):
+        if row > last and _on_proposal(p, s, original, row, start):
+            break
         low = max(-vmax, s - acc, -max_step_toward(p - lo, acc))
         high = min(vmax, s + acc, max_step_toward(hi - p, acc))
         if low > high + _EPS:
@@ -223,6 +236,13 @@ def _project_joint(
         p = min(max(p + s, lo), hi)
         column[row] = p
     return recoverable
+
+
+def _on_proposal(p: float, s: float, original: np.ndarray, row: int, start: float) -> bool:
+    """Is the projected state (position ``p``, step ``s``) the proposal's own before ``row``?"""
+    before = float(original[row - 1])
+    step = before - (float(original[row - 2]) if row >= 2 else start)
+    return abs(p - before) <= 1e-12 and abs(s - step) <= 1e-12
 
 
 def check_sequence(
