@@ -23,7 +23,7 @@ from typing import Any
 import msgspec
 import numpy as np
 
-from assurance.clock import CLIENT_DOMAIN, ms_to_ns
+from assurance.clock import CLIENT_DOMAIN
 
 
 class ReplacementPolicy(StrEnum):
@@ -151,12 +151,12 @@ class MalformedChunk:
     detail: str
 
 
-class _Malformed(Exception):
-    pass
+class ChunkDecodeError(Exception):
+    """Inside the decoders only: why a chunk is MALFORMED (never escapes them)."""
 
 
 # What numpy and msgspec may raise on hostile input that slipped past the explicit checks.
-_UNTRUSTED_INPUT_ERRORS = (ValueError, TypeError, OverflowError, SyntaxError)
+UNTRUSTED_INPUT_ERRORS = (ValueError, TypeError, OverflowError, SyntaxError)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -178,7 +178,7 @@ def payload_hash(
     return hashlib.blake2b(body, digest_size=16).hexdigest()
 
 
-def _identity(fields: Mapping[str, Any]) -> tuple[Any, ...]:
+def identity_fields(fields: Mapping[str, Any]) -> tuple[Any, ...]:
     return tuple(
         fields[name]
         for name in (
@@ -189,75 +189,14 @@ def _identity(fields: Mapping[str, Any]) -> tuple[Any, ...]:
     )
 
 
-# ---------------------------------------------------------------------------------------------
-# Decoding a scenario / journal event (milliseconds)
-# ---------------------------------------------------------------------------------------------
-
-_REQUIRED_TEXT = (
+REQUIRED_TEXT = (
     "policy_checkpoint", "config_hash", "skill_version", "task_phase", "controller_mode",
     "observation_id",
 )
-_REQUIRED_INT = ("sequence", "queue_epoch")
+REQUIRED_INT = ("sequence", "queue_epoch")
 
 
-def decode_event_chunk(event: Mapping[str, Any], client_receive: int) -> Chunk | MalformedChunk:
-    """Decode the envelope fields of a scenario ``chunk`` event (times in milliseconds)."""
-    chunk_id = _salvage_id(event.get("chunk_id"))
-    try:
-        return _decode_mapping(event, client_receive)
-    except _Malformed as error:
-        return MalformedChunk(chunk_id, str(error))
-    except _UNTRUSTED_INPUT_ERRORS as error:  # untrusted input never escapes as an exception
-        return MalformedChunk(chunk_id, f"undecodable: {type(error).__name__}")
-
-
-def _decode_mapping(event: Mapping[str, Any], client_receive: int) -> Chunk:
-    fields: dict[str, Any] = {"chunk_id": _text_or_int(event, "chunk_id")}
-    for name in _REQUIRED_INT:
-        fields[name] = _integer(event, name)
-    for name in _REQUIRED_TEXT:
-        fields[name] = _text_or_int(event, name)
-    fields["calibration_epoch"] = _text_or_int(event, "calibration_epoch")
-    nonfinite: list[str] = []
-    times: dict[str, int | None] = {}
-    for name in (*TIME_FIELDS, *DURATION_FIELDS):
-        times[name] = _milliseconds(event, name, nonfinite)
-    for name in ("first_action_time", "action_dt"):
-        if name not in event:
-            raise _Malformed(f"missing required field {name!r}")
-    if times["action_dt"] is not None and times["action_dt"] <= 0:
-        raise _Malformed("action_dt must be positive")
-    actions = _actions_from_lists(event.get("actions"), nonfinite)
-    _check_last_action_time(event, times, actions.shape[0], nonfinite)
-    return _build(event, fields, times, client_receive, actions, nonfinite)
-
-
-def _build(
-    event: Mapping[str, Any], fields: dict[str, Any], times: dict[str, int | None],
-    client_receive: int, actions: np.ndarray, nonfinite: list[str],
-) -> Chunk:
-    policy = _enum(event, "replacement_policy", ReplacementPolicy, ReplacementPolicy.REPLACE)
-    return Chunk(
-        **fields,
-        skill=_optional_text(event, "skill"),
-        clock_domain=_optional_text(event, "clock_domain") or CLIENT_DOMAIN,
-        client_receive=client_receive,
-        times=times,
-        replacement_policy=policy,
-        fallback_id=_optional_text(event, "fallback_id"),
-        phase_markers=_markers(event.get("phase_markers") or ()),
-        action_units=_optional_text(event, "action_units"),
-        action_frame=_optional_text(event, "action_frame"),
-        fingerprint_q=_fingerprint(event.get("state_fingerprint"), nonfinite),
-        actions=actions,
-        nonfinite=tuple(nonfinite),
-        payload_hash=payload_hash(
-            _identity(fields), times["first_action_time"], times["action_dt"], actions
-        ),
-    )
-
-
-def _salvage_id(value: Any) -> str | None:
+def salvage_id(value: Any) -> str | None:
     if isinstance(value, str):
         return value
     if isinstance(value, int) and not isinstance(value, bool):
@@ -265,125 +204,23 @@ def _salvage_id(value: Any) -> str | None:
     return None
 
 
-def _text_or_int(event: Mapping[str, Any], name: str) -> str:
-    if name not in event:
-        raise _Malformed(f"missing required field {name!r}")
-    value = _salvage_id(event[name])
-    if value is None or value == "":
-        raise _Malformed(f"field {name!r} must be a non-empty string")
-    return value
-
-
-def _optional_text(event: Mapping[str, Any], name: str) -> str | None:
-    value = event.get(name)
-    if value is None:
-        return None
-    if not isinstance(value, str):
-        raise _Malformed(f"field {name!r} must be a string")
-    return value
-
-
-_INT64 = 2**63
-MAX_TIME_MS = 1e13
-"""Largest magnitude of a time in milliseconds (about 300 years): anything beyond is nonsense,
-and would not fit the 64-bit integers of the wire."""
-
-
-def _integer(event: Mapping[str, Any], name: str) -> int:
-    if name not in event:
-        raise _Malformed(f"missing required field {name!r}")
-    value = event[name]
-    if isinstance(value, bool) or not isinstance(value, int):
-        if isinstance(value, float) and math.isfinite(value) and value.is_integer():
-            value = int(value)
-        else:
-            raise _Malformed(f"field {name!r} must be an integer")
-    if not -_INT64 <= value < _INT64:
-        raise _Malformed(f"field {name!r} is out of range")
-    return value
-
-
-def _milliseconds(event: Mapping[str, Any], name: str, nonfinite: list[str]) -> int | None:
-    value = event.get(name)
-    if value is None:
-        return None
-    if isinstance(value, bool) or not isinstance(value, int | float):
-        raise _Malformed(f"field {name!r} must be a number of milliseconds")
-    if isinstance(value, float) and not math.isfinite(value):
-        nonfinite.append(name)
-        return None
-    if abs(value) > MAX_TIME_MS:
-        raise _Malformed(f"field {name!r} is out of range")
-    return ms_to_ns(value)
-
-
-def _enum(event: Mapping[str, Any], name: str, enum: type[StrEnum], default: StrEnum) -> Any:
-    value = event.get(name)
-    if value is None:
-        return default
-    try:
-        return enum(value)
-    except ValueError:
-        raise _Malformed(f"field {name!r} has unknown value {value!r}") from None
-
-
-def _markers(value: Any) -> tuple[int, ...]:
+def phase_markers_of(value: Any) -> tuple[int, ...]:
     if not isinstance(value, list | tuple) or not all(
         isinstance(v, int) and not isinstance(v, bool) and v >= 0 for v in value
     ):
-        raise _Malformed("field 'phase_markers' must be a list of action indices")
+        raise ChunkDecodeError("field 'phase_markers' must be a list of action indices")
     return tuple(value)
 
 
-def _fingerprint(value: Any, nonfinite: list[str]) -> tuple[float, ...] | None:
-    if value is None or isinstance(value, str):
-        return None
-    q = value.get("q") if isinstance(value, Mapping) else value
-    if q is None:
-        return None
-    if not isinstance(q, list | tuple) or not all(_is_number(v) for v in q):
-        raise _Malformed("field 'state_fingerprint' must carry a joint vector 'q'")
-    if not all(math.isfinite(v) for v in q):
-        nonfinite.append("state_fingerprint")
-    return tuple(float(v) for v in q)
-
-
-def _is_number(value: Any) -> bool:
+def is_number(value: Any) -> bool:
     return isinstance(value, int | float) and not isinstance(value, bool)
 
 
-def _actions_from_lists(value: Any, nonfinite: list[str]) -> np.ndarray:
-    if not isinstance(value, list) or not value:
-        raise _Malformed("field 'actions' must be a non-empty list of action vectors")
-    width = len(value[0]) if isinstance(value[0], list) else -1
-    for row in value:
-        if not isinstance(row, list) or len(row) != width or width == 0:
-            raise _Malformed("field 'actions' must be a rectangular H x D list of numbers")
-        if not all(_is_number(v) for v in row):
-            raise _Malformed("field 'actions' holds a value that is not a number")
-    try:
-        array = np.array(value, dtype=np.float64)
-    except OverflowError:
-        raise _Malformed("field 'actions' holds a number too large for a float") from None
-    return _freeze(array, nonfinite)
-
-
-def _freeze(actions: np.ndarray, nonfinite: list[str]) -> np.ndarray:
+def freeze_actions(actions: np.ndarray, nonfinite: list[str]) -> np.ndarray:
     if not np.isfinite(actions).all():
         nonfinite.append("actions")
     actions.setflags(write=False)
     return actions
-
-
-def _check_last_action_time(
-    event: Mapping[str, Any], times: dict[str, int | None], horizon: int, nonfinite: list[str]
-) -> None:
-    last = _milliseconds(event, "last_action_time", nonfinite)
-    first, dt = times["first_action_time"], times["action_dt"]
-    if last is None or first is None or dt is None:
-        return
-    if abs(first + (horizon - 1) * dt - last) > 1_000:  # 1 us: rounding of ms in files
-        raise _Malformed("last_action_time disagrees with first_action_time + (H-1)*action_dt")
 
 
 # ---------------------------------------------------------------------------------------------
@@ -403,22 +240,22 @@ def decode_wire_chunk(frame: bytes, client_receive: int) -> Chunk | MalformedChu
         return MalformedChunk(_salvage_wire_id(frame), _short(error))
     try:
         return from_wire(wire, client_receive)
-    except _Malformed as error:
+    except ChunkDecodeError as error:
         return MalformedChunk(wire.chunk_id, str(error))
-    except _UNTRUSTED_INPUT_ERRORS as error:
+    except UNTRUSTED_INPUT_ERRORS as error:
         return MalformedChunk(wire.chunk_id, f"undecodable: {type(error).__name__}")
 
 
 def from_wire(wire: WireChunk, client_receive: int) -> Chunk:
     nonfinite: list[str] = []
-    actions = _freeze(_array_from_payload(wire.actions), nonfinite)
+    actions = freeze_actions(_array_from_payload(wire.actions), nonfinite)
     if wire.action_dt <= 0:
-        raise _Malformed("action_dt must be positive")
-    fields = {name: getattr(wire, name) for name in ("chunk_id", *_REQUIRED_INT, *_REQUIRED_TEXT)}
+        raise ChunkDecodeError("action_dt must be positive")
+    fields = {name: getattr(wire, name) for name in ("chunk_id", *REQUIRED_INT, *REQUIRED_TEXT)}
     fields["calibration_epoch"] = str(wire.calibration_epoch)
-    if any(fields[name] == "" for name in ("chunk_id", *_REQUIRED_TEXT)):
-        raise _Malformed("an identity field is empty")
-    _markers(list(wire.phase_markers))
+    if any(fields[name] == "" for name in ("chunk_id", *REQUIRED_TEXT)):
+        raise ChunkDecodeError("an identity field is empty")
+    phase_markers_of(list(wire.phase_markers))
     times = {name: getattr(wire, name) for name in (*TIME_FIELDS, *DURATION_FIELDS)}
     fingerprint = wire.state_fingerprint.q if wire.state_fingerprint else None
     if fingerprint is not None and not all(math.isfinite(v) for v in fingerprint):
@@ -431,7 +268,7 @@ def from_wire(wire: WireChunk, client_receive: int) -> Chunk:
         action_frame=wire.action_frame, fingerprint_q=fingerprint, actions=actions,
         nonfinite=tuple(nonfinite),
         payload_hash=payload_hash(
-            _identity(fields), wire.first_action_time, wire.action_dt, actions
+            identity_fields(fields), wire.first_action_time, wire.action_dt, actions
         ),
     )
 
@@ -440,13 +277,13 @@ def _array_from_payload(payload: ArrayPayload) -> np.ndarray:
     try:
         dtype = np.dtype(payload.dtype)
     except (TypeError, ValueError, SyntaxError):  # numpy parses dtype text with its own parser
-        raise _Malformed(f"actions have unknown dtype {payload.dtype!r}") from None
+        raise ChunkDecodeError(f"actions have unknown dtype {payload.dtype!r}") from None
     if dtype.kind != "f" or len(payload.shape) != 2 or min(payload.shape, default=0) <= 0:
-        raise _Malformed("actions must be a non-empty 2-D float array")
+        raise ChunkDecodeError("actions must be a non-empty 2-D float array")
     if len(payload.data) > MAX_ACTION_BYTES:
-        raise _Malformed("actions exceed the frame size limit")
+        raise ChunkDecodeError("actions exceed the frame size limit")
     if len(payload.data) != dtype.itemsize * payload.shape[0] * payload.shape[1]:
-        raise _Malformed("actions byte length does not match dtype and shape")
+        raise ChunkDecodeError("actions byte length does not match dtype and shape")
     flat = np.frombuffer(payload.data, dtype=dtype)
     return flat.reshape(payload.shape).astype(np.float64)
 
@@ -456,7 +293,7 @@ def _salvage_wire_id(frame: bytes) -> str | None:
         loose = _loose_decoder.decode(frame)
     except (msgspec.DecodeError, ValueError):
         return None
-    return _salvage_id(loose.get("chunk_id")) if isinstance(loose, dict) else None
+    return salvage_id(loose.get("chunk_id")) if isinstance(loose, dict) else None
 
 
 def _short(error: Exception) -> str:

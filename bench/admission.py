@@ -28,7 +28,8 @@ if __package__ in (None, ""):  # run as a script: make the repository's tools im
 import msgspec
 import numpy as np
 
-from assurance.envelope import decode_event_chunk, decode_wire_chunk, to_wire
+from assurance.envelope import decode_wire_chunk, to_wire
+from assurance.event_chunk import decode_event_chunk
 from kernel.core.events import ChunkEvent, ObservationEvent, StateEvent, TickEvent
 from kernel.core.lines import encode
 from kernel.core.runtime import Core

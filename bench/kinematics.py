@@ -25,12 +25,8 @@ import pinocchio as pin
 
 from assurance import kinematics as kin_module
 from assurance.kinematics import ArmKinematics, IKConfig
-from skills.trajectory import (
-    MotionLimits,
-    SetpointInterpolator,
-    decelerate_to_hold,
-    plan_joint_move,
-)
+from skills.interpolator import SetpointInterpolator
+from skills.trajectory import MotionLimits, decelerate_to_hold, plan_joint_move
 from stubs import robot_model as rm
 from stubs.plant.mujoco_plant import MujocoPlant, MujocoPlantConfig
 

@@ -18,7 +18,8 @@ from drivers.base import Command, CommandKind
 from kernel.core.tick import TickCommand
 from skills.assembly import AssemblyRunner, Sensed
 from skills.contact import ContactOwner, ContactState
-from skills.trajectory import MotionLimits, SetpointInterpolator
+from skills.interpolator import SetpointInterpolator
+from skills.trajectory import MotionLimits
 
 
 class MotionController:

@@ -14,7 +14,8 @@ from collections.abc import Callable, Mapping
 from typing import Any
 
 from assurance.clock import ms_to_ns
-from assurance.envelope import decode_event_chunk, decode_wire_chunk
+from assurance.envelope import decode_wire_chunk
+from assurance.event_chunk import decode_event_chunk
 from assurance.limits import JointLimits
 from kernel.core.events import (
     CONTROLLER_STATUSES,

@@ -16,10 +16,10 @@ from assurance.envelope import (
     Chunk,
     MalformedChunk,
     ReplacementPolicy,
-    decode_event_chunk,
     decode_wire_chunk,
     to_wire,
 )
+from assurance.event_chunk import decode_event_chunk
 
 EVENT: dict[str, Any] = {
     "chunk_id": "c1", "sequence": 4, "queue_epoch": 2, "policy_checkpoint": "ckpt-a",

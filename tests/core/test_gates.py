@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from assurance.clock import ClockMap, ClockSync
-from assurance.envelope import Chunk, decode_event_chunk
+from assurance.envelope import Chunk
+from assurance.event_chunk import decode_event_chunk
 from assurance.gates import (
     AdmissionContext,
     content_reasons,

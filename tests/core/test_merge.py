@@ -7,7 +7,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from assurance.envelope import Chunk, ReplacementPolicy, decode_event_chunk
+from assurance.envelope import Chunk, ReplacementPolicy
+from assurance.event_chunk import decode_event_chunk
 from assurance.gates import Timing
 from assurance.limits import JointLimits
 from assurance.merge import MergeInputs, MergePlan, plan_merge

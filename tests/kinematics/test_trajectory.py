@@ -8,13 +8,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from assurance.limits import JointLimits
-from skills.trajectory import (
-    InterpolatorConfig,
-    MotionLimits,
-    SetpointInterpolator,
-    decelerate_to_hold,
-    plan_joint_move,
-)
+from skills.interpolator import InterpolatorConfig, SetpointInterpolator
+from skills.trajectory import MotionLimits, decelerate_to_hold, plan_joint_move
 
 PROPERTY = settings(max_examples=30, deadline=None)
 PERIOD_NS = 2_000_000

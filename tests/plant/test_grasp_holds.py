@@ -17,7 +17,8 @@ import numpy as np
 import pytest
 
 from assurance.kinematics import ArmKinematics, Pose
-from skills.trajectory import MotionLimits, SetpointInterpolator, plan_joint_move
+from skills.interpolator import SetpointInterpolator
+from skills.trajectory import MotionLimits, plan_joint_move
 from stubs import robot_model as rm
 from stubs.plant.mujoco_plant import MujocoPlant
 

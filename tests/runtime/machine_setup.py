@@ -6,7 +6,7 @@ from typing import Any
 
 import numpy as np
 
-from assurance.envelope import decode_event_chunk
+from assurance.event_chunk import decode_event_chunk
 from kernel.core.config import CoreConfig
 from kernel.core.events import ChunkEvent
 from kernel.scenario.config import build_config
