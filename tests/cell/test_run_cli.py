@@ -1,0 +1,68 @@
+"""``warden run`` with bad input: exit 2, a message naming the file and the key, nothing runs."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from kernel.cli import main
+from tests.cell.harness import MANIFESTS
+
+BASE = (MANIFESTS / "sim-ur5e.toml").read_text()
+
+
+def _run(tmp_path: Path, text: str, capsys: pytest.CaptureFixture[str]) -> tuple[int, str]:
+    path = tmp_path / "cell.toml"
+    path.write_text(text)
+    code = main(["run", str(path), "--no-journal"])
+    return code, capsys.readouterr().err
+
+
+@pytest.mark.parametrize(("change", "needle"), [
+    (("cycles = 3", "cyclez = 3"), "cell.cyclez: unknown key"),
+    (("[policy]", "[polcy]"), "polcy: unknown key"),
+    (("acceleration_limits = [20.0, 20.0", "acceleration_limits = [20.0, -1.0"),
+     "robot.acceleration_limits"),
+    (("position_limits = [[-6.2832, 6.2832]", "position_limits = [[6.2832, -6.2832]"),
+     "robot.position_limits[0]"),
+    (('name = "sim"', 'name = "sim"\nport = "/dev/ttyUSB0"'), "driver.port: unknown key"),
+    (('name = "sim"', 'name = "warp-drive"'), "driver.name"),
+    (("max_divergence = 0.03", "max_divergence = \"small\""), "phases.PRE_CONTACT.max_divergence"),
+])
+def test_bad_manifest_exits_2_naming_the_key(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], change: tuple[str, str], needle: str
+) -> None:
+    assert change[0] in BASE
+    code, err = _run(tmp_path, BASE.replace(change[0], change[1], 1), capsys)
+    assert code == 2
+    assert needle in err and str(tmp_path / "cell.toml") in err
+    assert "Traceback" not in err
+
+
+def test_missing_manifest_exits_2(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["run", str(tmp_path / "nowhere.toml")]) == 2
+    assert "cannot read file" in capsys.readouterr().err
+
+
+def test_real_device_unreachable_exits_2(tmp_path: Path,
+                                          capsys: pytest.CaptureFixture[str]) -> None:
+    text = (MANIFESTS / "sim-ur5e-rtde.toml").read_text()
+    text = text.replace('name = "ur_rtde"', 'name = "ur_rtde"\nhost = "127.0.0.9"\n'
+                        'connect_timeout_s = 0.5\nreconnect_attempts = 0', 1)
+    text = text.replace('plant = "mujoco"', "launch = false", 1)
+    text = text.replace("cycle_timeout_s = 30.0", "cycle_timeout_s = 30.0\n"
+                        "simulated_operator = false", 1)
+    code, err = _run(tmp_path, text, capsys)
+    assert code == 2
+    assert "127.0.0.9" in err and "check" in err
+
+
+def test_simulated_operator_is_refused_on_a_real_device(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    text = (MANIFESTS / "sim-ur5e-rtde.toml").read_text()
+    text = text.replace('name = "ur_rtde"', 'name = "ur_rtde"\nhost = "127.0.0.9"', 1)
+    text = text.replace('plant = "mujoco"', "launch = false", 1)
+    code, err = _run(tmp_path, text, capsys)
+    assert code == 2 and "cell.simulated_operator" in err
