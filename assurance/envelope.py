@@ -232,6 +232,10 @@ _loose_decoder = msgspec.msgpack.Decoder()
 MAX_ACTION_BYTES = 1 << 20
 
 
+MAX_TIME_NS = 10**19
+"""Largest magnitude of a wire time or duration (10¹³ ms, as for scenario chunks)."""
+
+
 def decode_wire_chunk(frame: bytes, client_receive: int) -> Chunk | MalformedChunk:
     """Decode a MessagePack chunk frame received at ``client_receive`` (client ns)."""
     try:
@@ -257,6 +261,9 @@ def from_wire(wire: WireChunk, client_receive: int) -> Chunk:
         raise ChunkDecodeError("an identity field is empty")
     phase_markers_of(list(wire.phase_markers))
     times = {name: getattr(wire, name) for name in (*TIME_FIELDS, *DURATION_FIELDS)}
+    for name, value in times.items():
+        if value is not None and abs(value) > MAX_TIME_NS:
+            raise ChunkDecodeError(f"field {name!r} is out of range")
     fingerprint = wire.state_fingerprint.q if wire.state_fingerprint else None
     if fingerprint is not None and not all(math.isfinite(v) for v in fingerprint):
         nonfinite.append("state_fingerprint")

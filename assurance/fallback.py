@@ -173,13 +173,15 @@ class FallbackMachine:
     def card(self) -> ModeCard:
         return MODES[self.mode]
 
-    def fire(self, trigger: R) -> Transition | None:
-        """Count ``trigger``; transition when its rule applies and its debounce is reached."""
+    def fire(self, trigger: R, immediate: bool = False) -> Transition | None:
+        """Count ``trigger``; transition when its rule applies and its debounce is reached
+        (at once when ``immediate``: the event is conclusive on its own, e.g. a rejected
+        handshake whose first reason happens to be a debounced one)."""
         rule = self.rules.get(trigger)
         if rule is None or self.mode not in rule.sources:
             return None
         count = self._counts.get(rule.counter, 0) + 1
-        if count < rule.debounce:
+        if count < rule.debounce and not immediate:
             self._counts[rule.counter] = count
             return None
         return self._go(rule.to, trigger)

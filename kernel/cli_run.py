@@ -81,9 +81,12 @@ def _run_wall(manifest: Manifest, journal_dir: Path | None) -> dict[str, Any]:
 
 
 def _output(summary: dict[str, Any], json_out: str | None) -> None:
+    from rich.console import Console
+
     from kernel.cell.report import render_summary
 
-    render_summary(summary)
+    # With the JSON on stdout, the table goes to stderr so stdout stays machine-readable.
+    render_summary(summary, Console(stderr=json_out == "-"))
     if json_out == "-":
         print(json.dumps(summary, indent=1, default=str))
     elif json_out:

@@ -108,8 +108,7 @@ _BODIES: dict[type, Callable[[Any], dict[str, Any]]] = {
     OperatorEvent: lambda e: {"kind": "operator", "action": e.action},
     ControllerEvent: lambda e: {"kind": "controller", "status": e.status},
     ClockSyncEvent: lambda e: {"kind": "clock_sync", "domain": e.domain,
-                               "offset_ms": ns_to_ms(e.offset),
-                               "round_trip_ms": ns_to_ms(e.round_trip)},
+                               "offset_ns": e.offset, "round_trip_ns": e.round_trip},
     TickEvent: lambda e: {"kind": "tick"},
 }
 

@@ -119,6 +119,15 @@ class AssemblyRunner:
         """The classical setpoint for a tick the core gave to the planner (None: no move)."""
         return None if self._move is None else self._move.advance(dt_s)
 
+    def resume_move_from(self, q: np.ndarray) -> None:
+        """Re-plan the current move from ``q`` at rest: another owner moved the arm meanwhile.
+
+        Raises:
+            PlanningError, ValueError: no rest-to-rest move from ``q`` to the move's target.
+        """
+        if self._move is not None:
+            self._move = self.planner.to_joints(q, self._move.target)
+
     def update(self, sensed: Sensed, phase: TaskPhase, mode: Mode) -> PhaseRequest | None:
         """Advance the cycle; may return a phase transition to ask the core for."""
         if self.step is Step.DONE:
@@ -184,6 +193,8 @@ class AssemblyRunner:
         if phase is P.VERIFY:
             self._enter(Step.VERIFY, s.t_ns)
             return None
+        if phase is P.PRE_CONTACT:  # a hold interrupted contact: the insertion is not resumed
+            return self._fail("insertion interrupted by a fallback", s, mode)
         if self.contact.state is ContactState.RETREATED and mode is Mode.RUNNING:
             return self._fail("contact anomaly: force-aware retreat", s, mode)
         timed_out = self._elapsed(s) > self.timing.insert_timeout_s

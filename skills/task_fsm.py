@@ -30,6 +30,7 @@ CONTACT_EVIDENCE = (
 
 GUARDS: dict[tuple[TaskPhase, TaskPhase], tuple[str, ...]] = {
     (P.PRE_CONTACT, P.CONTACT): CONTACT_EVIDENCE,
+    (P.VALIDATE, P.CONTACT): CONTACT_EVIDENCE,  # no way into contact without the evidence
 }
 
 EDGES: dict[TaskPhase, frozenset[TaskPhase]] = {
@@ -97,18 +98,28 @@ class TaskMachine:
         return self._move(target, trigger)
 
     def begin_validation(self, trigger: ReasonCode) -> TaskDecision | None:
-        """Enter VALIDATE on the way back to work (after recovery or a new handshake)."""
-        if self.phase is P.VALIDATE:
+        """Enter VALIDATE on the way back to work (after recovery or a new handshake).
+
+        An aborted task stays aborted: it leaves ABORT only for IDLE, and validates from there
+        like any new task.
+        """
+        if self.phase in (P.VALIDATE, P.ABORT):
             return None
         if self.phase in WORK_PHASES:
             self.resume_phase = self.phase
         return self._move(P.VALIDATE, trigger)
 
     def finish_validation(self) -> TaskDecision | None:
-        """VALIDATE passed: return to the phase that was suspended, if there is one."""
+        """VALIDATE passed: return to the phase that was suspended, if there is one.
+
+        A task suspended in CONTACT resumes in PRE_CONTACT: the contact evidence it entered
+        with is stale after a hold, so contact is entered again only through its guard.
+        """
         if self.phase is not P.VALIDATE or self.resume_phase is None:
             return None
         target, self.resume_phase = self.resume_phase, None
+        if target is P.CONTACT:
+            target = P.PRE_CONTACT
         return self._move(target, ReasonCode.GUARD_PASSED)
 
     def _missing(self, target: TaskPhase, evidence: Mapping[str, object]) -> tuple[str, ...]:
@@ -119,5 +130,7 @@ class TaskMachine:
         source = self.phase
         if source in WORK_PHASES and target in SUSPENDED:
             self.resume_phase = source
+        elif target in (P.ABORT, P.IDLE):
+            self.resume_phase = None  # the suspended work is given up, never resumed later
         self.phase = target
         return TaskDecision(True, source, target, trigger)

@@ -19,6 +19,7 @@ from kernel.cell.emulated import DeviceWorld, EmulatorWorld
 from kernel.cell.motion import MotionController
 from kernel.cell.operator import SimulatedOperator
 from kernel.cell.world import SimWorld, World
+from kernel.core.config import CoreConfig
 from kernel.core.runtime import Core
 from kernel.manifest import Manifest, ManifestError
 from kernel.shell.gateway import CoreGateway
@@ -66,8 +67,17 @@ class Cell:
 
 def build_cell(manifest: Manifest, clock: Clock, recorder: Recorder | None) -> Cell:
     config = dataclasses.replace(manifest.core, initial_session=None)  # handshake first
+    world = _world(manifest, config.control_period_ns)
+    try:
+        return _assemble(manifest, config, world, clock, recorder)
+    except BaseException:
+        world.close()  # an emulator already started must not outlive a failed build
+        raise
+
+
+def _assemble(manifest: Manifest, config: CoreConfig, world: World, clock: Clock,
+              recorder: Recorder | None) -> Cell:
     period = config.control_period_ns
-    world = _world(manifest, period)
     core = Core(config)
     gateway = CoreGateway(core, clock, recorder)
     kin = ArmKinematics()

@@ -18,12 +18,13 @@ import numpy as np
 
 from assurance.fallback import Mode
 from assurance.reasons import ReasonCode
-from drivers.base import Applied, Command, DriverError, DriverState, StateSample
+from drivers.base import Applied, Command, CommandKind, DriverError, DriverState, StateSample
 from drivers.lifecycle import ManagedDriver
 from kernel.cell.motion import MotionController
 from kernel.cell.operator import SimulatedOperator
 from kernel.cell.world import World
 from kernel.core.events import ControllerEvent, PhaseEvent, StateEvent
+from kernel.core.tick import TickCommand
 from kernel.shell.gateway import CoreGateway
 from kernel.summary import CycleResult
 from skills.assembly import AssemblyRunner, Sensed
@@ -78,7 +79,7 @@ class CellController:
         if request is not None:
             self.gateway.feed(PhaseEvent(t=t, to=request.to, evidence=request.evidence))
         decision = self.gateway.tick(t)
-        applied = await self._write(self.motion.command(decision, sensed))
+        applied = await self._write(await self._command(decision, sensed))
         self._count(applied)
         self.world.advance()
         self.counters.ticks += 1
@@ -90,6 +91,15 @@ class CellController:
             return await self.driver.read()
         except DriverError:
             return await self.driver.read()  # FAULT now: the lifecycle answers from its record
+
+    async def _command(self, decision: TickCommand, sensed: Sensed) -> Command:
+        """The motion layer's command; if it fails, the device is stopped before the error
+        propagates (and ends the run), so a software fault never leaves the last command live."""
+        try:
+            return self.motion.command(decision, sensed)
+        except Exception:
+            await self._write(Command(kind=CommandKind.STOP, gripper=self.runner.gripper))
+            raise
 
     async def _write(self, command: Command) -> Applied | None:
         """Send the command; a failing device is FAULT from now on, reported next tick."""

@@ -49,14 +49,18 @@ async def run_live(manifest: Manifest, journal_dir: Path | None,
     log.info("scheduling", detail=realtime.summary())
     service = ServiceNotifier.from_env()
     failures: list[str] = []
+    loop = _Loop(context, progress, hook, service, realtime.summary())
+    client: RobotClient | None = None
     try:
-        await bring_up(context)  # a device that is not there fails here, before anything runs
-        server = _policy_server(manifest, context.cell.policy_goal)
-        client = RobotClient(ClientConfig(url=_url(manifest, server)), context.cell.gateway)
-        context.cell.gateway.listeners.append(client.notify)
-        loop = _Loop(context, progress, hook, service, realtime.summary())
+        # A stop requested during start-up (device bring-up, policy server start) is kept and
+        # honoured before the first tick, through the same orderly shutdown.
         with _stop_on_signals(loop):
-            await _supervise(context, client, loop, failures)
+            await bring_up(context)  # a device that is not there fails here, before anything
+            server = _policy_server(manifest, context.cell.policy_goal)
+            client = RobotClient(ClientConfig(url=_url(manifest, server)), context.cell.gateway)
+            context.cell.gateway.listeners.append(client.notify)
+            if not loop.stop_requested:
+                await _supervise(context, client, loop, failures)
     finally:
         service.stopping("holding the arm and closing the device")
         await context.cell.driver.aclose()
@@ -66,12 +70,12 @@ async def run_live(manifest: Manifest, journal_dir: Path | None,
         service.close()
         if server is not None:
             server.stop()
-        context.recorder.flush()
+        context.recorder.close()
         context.files.close()
     return finish(context, {
         "clock": "wall", "timed_out": not context.cell.controller.finished,
         "task_failures": failures, "loop": {"realtime": realtime.summary()},
-        "link": {k: v for k, v in client.counters.snapshot().items() if v},
+        "link": {k: v for k, v in client.counters.snapshot().items() if v} if client else {},
         "service": {"notify": service.enabled, "sent": service.stats.sent,
                     "failed": service.stats.failed},
     })

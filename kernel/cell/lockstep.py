@@ -43,7 +43,7 @@ async def run_lockstep(manifest: Manifest, journal_dir: Path | None,
     finally:
         await cell.driver.aclose()
         cell.world.close()
-        context.recorder.flush()
+        context.recorder.close()
         context.files.close()
     timed_out = not cell.controller.finished
     return finish(context, {"clock": "virtual", "timed_out": timed_out,

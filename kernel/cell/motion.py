@@ -4,8 +4,12 @@ The core says who owns the period and where it may go; this module turns that in
 command with the right law: the setpoint interpolator for policy actions and holds (so every
 stream, every stop and every hand-over stays inside the velocity, acceleration and jerk
 limits), the planner's trajectory for classical moves, the impedance law in contact, a plain
-stop or a device hold where the core asks for one. Hand-overs restart the interpolator from the
-last commanded state, so there is no jump when an owner changes.
+stop or a device hold where the core asks for one.
+
+Hand-overs never jump: the interpolator restarts from the last commanded state (clipped into
+the limits, so a measured overshoot cannot stop a stop), and a planner move that another owner
+interrupted is re-planned from rest where the arm was left, after the interpolator has brought
+the arm to rest, instead of resuming mid-profile at the speed it had when it was paused.
 """
 
 from __future__ import annotations
@@ -19,7 +23,11 @@ from kernel.core.tick import TickCommand
 from skills.assembly import AssemblyRunner, Sensed
 from skills.contact import ContactOwner, ContactState
 from skills.interpolator import SetpointInterpolator
+from skills.planner import PlanningError
 from skills.trajectory import MotionLimits
+
+RESUME_AT_REST_RAD_S = 1e-3
+"""Interpolator speed below which a paused planner move may be re-planned from rest."""
 
 
 class MotionController:
@@ -31,19 +39,30 @@ class MotionController:
         self.runner, self.contact = runner, contact
         self.period_ns, self.dt_s = period_ns, period_ns * 1e-9
         self.impedance = impedance
-        self.interpolator = SetpointInterpolator(limits, np.asarray(q0, float))
-        self.commanded = np.asarray(q0, dtype=float).copy()
+        self.interpolator = SetpointInterpolator(limits, self._inside(q0))
+        self.commanded = self.interpolator.setpoint.position.copy()
+        self._planner_had_tick = False
+        self._pending_resume = False
+        self._resume_target = self.commanded
+
+    def restart_from(self, q: np.ndarray) -> None:
+        """Start over from a measured position at rest (after bring-up, at the device's pose)."""
+        self._restart(q)
+        self._planner_had_tick = self._pending_resume = False
 
     def command(self, tick: TickCommand, s: Sensed) -> Command:
         kind, owner = tick.command, tick.owner
+        planner_tick = owner is Owner.PLANNER and kind in (Cmd.SETPOINT, Cmd.RETREAT)
+        resuming = planner_tick and not self._planner_had_tick
+        self._planner_had_tick = planner_tick
         if kind is Cmd.STOP:
             return self._device(CommandKind.STOP, s)
         if kind is Cmd.HOLD and owner is Owner.HUMAN:
             return self._device(CommandKind.HOLD, s)
         if owner is Owner.CONTACT:
             return self._contact(tick, s)
-        if owner is Owner.PLANNER and kind in (Cmd.SETPOINT, Cmd.RETREAT):
-            return self._planned(s)
+        if planner_tick:
+            return self._planned(s, resuming)
         target = tick.target if tick.target is not None else s.q
         return self._interpolated(np.asarray(target)[: self.limits.dof], s)
 
@@ -52,12 +71,29 @@ class MotionController:
         setpoint = self.interpolator.update(clipped, s.t_ns)
         return self._position(setpoint.position)
 
-    def _planned(self, s: Sensed) -> Command:
+    def _planned(self, s: Sensed, resuming: bool) -> Command:
+        if resuming:
+            self._resume_target = self.interpolator.setpoint.position.copy()
+        if resuming or self._pending_resume:
+            self._pending_resume = not self._resume_planner_move()
+            if self._pending_resume:  # still moving: settle where the last owner left the arm
+                return self._interpolated(self._resume_target, s)
         sample = self.runner.planner_setpoint(self.dt_s)
         if sample is None:  # the planner owns the tick but has no move: hold still
             return self._interpolated(self.commanded, s)
         self.interpolator.reset(sample.position, sample.velocity)
         return self._position(sample.position)
+
+    def _resume_planner_move(self) -> bool:
+        """Re-plan the planner's move from the interpolator's state; False: not at rest yet."""
+        setpoint = self.interpolator.setpoint
+        if float(np.abs(setpoint.velocity).max()) > RESUME_AT_REST_RAD_S:
+            return False
+        try:
+            self.runner.resume_move_from(setpoint.position)
+        except (PlanningError, ValueError):
+            return False  # no rest-to-rest move from here: keep holding, try again next tick
+        return True
 
     def _contact(self, tick: TickCommand, s: Sensed) -> Command:
         if tick.command is Cmd.RETREAT:
@@ -66,8 +102,7 @@ class MotionController:
             self.contact.hold_at(s.q)
         bounded = tick.target if tick.sent is not None else None
         law = self.contact.step(s.t_ns, self.dt_s, s.force_norm, bounded)
-        self.interpolator.reset(law.q)
-        self.commanded = law.q.copy()
+        self._restart(law.q)
         kind = CommandKind.IMPEDANCE if self.impedance else CommandKind.POSITION
         return Command(kind=kind, q=tuple(law.q.tolist()), gripper=self.runner.gripper,
                        stiffness=tuple(law.stiffness.tolist()) if self.impedance else (),
@@ -80,6 +115,15 @@ class MotionController:
 
     def _device(self, kind: CommandKind, s: Sensed) -> Command:
         """The device's own hold or stop; the interpolator restarts from where the arm is."""
-        self.interpolator.reset(s.q)
-        self.commanded = np.asarray(s.q, dtype=float).copy()
-        return Command(kind=kind, gripper=self.runner.gripper)
+        command = Command(kind=kind, gripper=self.runner.gripper)
+        self._restart(s.q)
+        return command
+
+    def _restart(self, q: np.ndarray) -> None:
+        self.interpolator.reset(self._inside(q))
+        self.commanded = self.interpolator.setpoint.position.copy()
+
+    def _inside(self, q: np.ndarray) -> np.ndarray:
+        """A measured position may sit a hair past a limit (tracking overshoot, a human push)."""
+        return np.clip(np.asarray(q, dtype=float)[: self.limits.dof], self.limits.lower,
+                       self.limits.upper)

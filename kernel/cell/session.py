@@ -12,6 +12,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
 
+import numpy as np
+
 from drivers.base import ControlConfig
 from kernel.cell.build import Cell, build_cell
 from kernel.cell.report import CycleProgress
@@ -79,6 +81,11 @@ async def bring_up(context: RunContext) -> None:
         v_max=tuple(limits.velocity[arm].tolist()))
     await context.cell.driver.configure(control)
     await context.cell.driver.activate()
+    # A real device starts wherever it was parked, not at the layout's home: the first command
+    # must hold that pose, so motion restarts from the first measured sample.
+    sample = await context.cell.driver.read()
+    if sample.q:
+        context.cell.controller.motion.restart_from(np.array(sample.q))
 
 
 def report_progress(context: RunContext, progress: CycleProgress | None) -> None:

@@ -123,8 +123,9 @@ def on_handshake(state: CoreState, event: HandshakeEvent) -> None:
 
 
 def _rejected(state: CoreState, reasons: tuple[str, ...]) -> None:
+    """A rejected handshake ends the session at once: no debounce, whatever its reasons."""
     first = R(reasons[0]) if reasons else R.HANDSHAKE_REQUIRED
-    if not state.fire(first):
+    if not state.fire(first, immediate=True):
         state.purge(first)  # "REJECT ... with an empty queue"
 
 
@@ -171,7 +172,9 @@ def _accept_recovery(state: CoreState) -> None:
         state.refuse("fallback", Mode.RUNNING, R.GUARD_FAILED, outcome)
         return
     state.apply(outcome, QueueAction.NEW_EPOCH)
-    if state.task.phase in (TaskPhase.SAFE_HOLD, TaskPhase.HUMAN_RECOVERY):
+    # Every way back to work passes VALIDATE, whichever fallback state it recovers from; an
+    # idle or aborted task validates when it starts again.
+    if state.task.phase not in (TaskPhase.IDLE, TaskPhase.ABORT):
         state.log_task(state.task.begin_validation(R.RECOVERY_ACCEPTED))
         validate(state)
 

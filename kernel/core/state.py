@@ -38,6 +38,8 @@ class CoreState:
     link_up: bool = True
     last_sequence: int | None = None
     measured_t: int | None = None
+    watched_since: int | None = None
+    """The first tick's time: the state watchdog counts from here until a sample arrives."""
     hold_q: np.ndarray | None = None
     underrun_since: int | None = None
     executed_in_epoch: bool = False
@@ -122,9 +124,9 @@ class CoreState:
         if self.watermarks is not None:
             self.watermarks.answered()
 
-    def fire(self, trigger: ReasonCode) -> bool:
+    def fire(self, trigger: ReasonCode, immediate: bool = False) -> bool:
         """Raise a fallback trigger; apply and log the transition if one happens."""
-        transition = self.fallback.fire(trigger)
+        transition = self.fallback.fire(trigger, immediate)
         if transition is None:
             return False
         self.apply(transition)

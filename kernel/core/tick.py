@@ -50,9 +50,12 @@ def tick(state: CoreState) -> TickCommand:
 
 def _watchdog(state: CoreState) -> None:
     timeout = state.config.state_timeout_ns
-    if timeout is None or state.measured_t is None:
+    if timeout is None:
         return
-    if state.t - state.measured_t > timeout:
+    if state.watched_since is None:
+        state.watched_since = state.t  # from the first tick: a state that never comes is caught
+    last = state.measured_t if state.measured_t is not None else state.watched_since
+    if state.t - last > timeout:
         state.fire(R.WATCHDOG)
 
 

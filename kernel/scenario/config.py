@@ -35,6 +35,9 @@ def build_config(doc: Mapping[str, Any], where: Where) -> CoreConfig:
     limits = robot_limits(mapping(doc, "robot", where), where.at("robot"))
     timing = mapping(doc, "timing", where, required=False)
     period = number(timing, "control_period_ms", where.at("timing"), default=2.0, positive=True)
+    if ms_to_ns(period) <= 0:
+        raise where.at("timing").at("control_period_ms").error(
+            f"must be at least 1 ns (0.000001 ms), got {period!r}")
     uncertainty = number(timing, "clock_uncertainty_ms", where.at("timing"), 0.0, minimum=0)
     session_doc = mapping(doc, "session", where)
     client, session, phase, q0, epoch = _session(session_doc, where.at("session"), limits, period)
@@ -176,7 +179,12 @@ def _ms(body: Mapping[str, Any], key: str, where: Where, default_ns: int) -> int
 
 
 def _optional_ms(body: Mapping[str, Any], key: str, where: Where) -> int | None:
-    return ms_to_ns(number(body, key, where, positive=True)) if body.get(key) is not None else None
+    if body.get(key) is None:
+        return None
+    value = number(body, key, where, positive=True)
+    if ms_to_ns(value) <= 0:
+        raise where.at(key).error(f"must be at least 1 ns (0.000001 ms), got {value!r}")
+    return ms_to_ns(value)
 
 
 def _force_band(raw: Any, where: Where) -> ForceBand | None:

@@ -37,7 +37,17 @@ from kernel.core.events import (
     TickEvent,
 )
 from kernel.scenario.config import state_vector
-from kernel.scenario.fields import Where, choice, is_number, mapping, number, text, vector
+from kernel.scenario.fields import (
+    MAX_MAGNITUDE,
+    Where,
+    choice,
+    integer,
+    is_number,
+    mapping,
+    number,
+    text,
+    vector,
+)
 from skills.phases import TaskPhase
 
 Parser = Callable[[int, Mapping[str, Any], Where, JointLimits], Event]
@@ -147,12 +157,24 @@ def _controller(t: int, item: Mapping[str, Any], where: Where, _: JointLimits) -
     return ControllerEvent(t=t, status=choice(item, "status", where, CONTROLLER_STATUSES))
 
 
+MAX_NS = int(MAX_MAGNITUDE) * 1_000_000
+"""The largest clock offset or round trip a journal may carry, as for every time in ms."""
+
+
 def _clock_sync(t: int, item: Mapping[str, Any], where: Where, _: JointLimits) -> Event:
-    return ClockSyncEvent(
-        t=t, domain=text(item, "domain", where),
-        offset=ms_to_ns(number(item, "offset_ms", where)),
-        round_trip=ms_to_ns(number(item, "round_trip_ms", where, minimum=0)),
-    )
+    # Journals carry integer nanoseconds (``offset_ns``): a policy host's clock can be far
+    # enough from ours that milliseconds as a float would not round-trip to the nanosecond.
+    if "offset_ns" in item or "round_trip_ns" in item:
+        offset = integer(item, "offset_ns", where)
+        round_trip = integer(item, "round_trip_ns", where, minimum=0)
+        if abs(offset) > MAX_NS or round_trip > MAX_NS:
+            raise where.error(f"offset_ns and round_trip_ns must be at most {MAX_NS:g} in "
+                              "magnitude")
+    else:
+        offset = ms_to_ns(number(item, "offset_ms", where))
+        round_trip = ms_to_ns(number(item, "round_trip_ms", where, minimum=0))
+    return ClockSyncEvent(t=t, domain=text(item, "domain", where), offset=offset,
+                          round_trip=round_trip)
 
 
 def _tick(t: int, item: Mapping[str, Any], where: Where, _: JointLimits) -> Event:

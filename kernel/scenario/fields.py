@@ -7,6 +7,10 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
+MAX_MAGNITUDE = 1e13
+"""No field is legitimately this large (as milliseconds: three centuries); larger values
+overflow the integer-nanosecond clock, so they are refused here with the field named."""
+
 
 class ScenarioError(ValueError):
     """A file that is not a valid scenario; ``str()`` names the file, the place and the field."""
@@ -53,6 +57,8 @@ def number(
     here = where.at(key)
     if not is_number(value) or not math.isfinite(value):
         raise here.error(f"must be a finite number, got {value!r}")
+    if abs(value) > MAX_MAGNITUDE:
+        raise here.error(f"must be at most {MAX_MAGNITUDE:g} in magnitude, got {value!r}")
     if positive and value <= 0:
         raise here.error(f"must be positive, got {value!r}")
     if minimum is not None and value < minimum:

@@ -1,17 +1,23 @@
 """The run recorder: the journal (events) and the decision log (lines) written off the tick path.
 
-The control tick only appends already-encoded lines to in-memory buffers; a recorder task
-writes them out every ``flush_interval_s`` with one write per file, so a slow disk delays the
-recorder, never the controller. The buffers are bounded: if the recorder falls that far behind,
-the overflow is counted as a gap and reported (a journal with a gap is not promoted as a replay
-of the run), and the run goes on holding the safety decisions in the decision log it could
-still write.
+The control tick only appends already-encoded lines to in-memory buffers; every
+``flush_interval_s`` the recorder task swaps the buffers out and queues them for its own writer
+thread (one write per file), so a slow or stalled disk delays the recorder, never the event loop
+the controller runs on. The writer never calls back into the loop: with ``run_in_executor``
+instead, the CANopen cell lost drive heartbeats at start-up in most runs on the 2-core test
+machine (the mechanism was not pinned down; this design does not show it). The buffers, queued
+batches included, are bounded: if the recorder falls that far behind, the overflow is counted as
+a gap and reported (a journal with a gap is not promoted as a replay of the run), and the run
+goes on holding the safety decisions in the decision log it could still write.
 """
 
 from __future__ import annotations
 
 import asyncio
 import json
+import os
+import queue
+import threading
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -42,13 +48,19 @@ class Recorder:
         self._max = max_buffered
         self.flush_interval_s = flush_interval_s
         self.stats = RecorderStats()
+        self._batches: queue.SimpleQueue[_Batch | None] = queue.SimpleQueue()
+        self._queued = 0  # items handed over and not yet written (the bound covers them too)
+        self._queued_lock = threading.Lock()
+        self._writer = threading.Thread(target=self._write_batches, name="warden-recorder",
+                                        daemon=True)
+        self._writer.start()
         if journal is not None and head is not None:
             journal.write(json.dumps(dict(head), allow_nan=True) + "\n")
 
     def event(self, event: Event) -> None:
         if self._journal is None:
             return
-        if len(self._events) >= self._max:
+        if len(self._events) + self._queued >= self._max:
             self.stats.gaps += 1
             return
         self._events.append(json.dumps(event_record(event), allow_nan=True))
@@ -57,33 +69,80 @@ class Recorder:
     def lines(self, lines: list[Line]) -> None:
         if self._decisions is None or not lines:
             return
-        if len(self._lines) >= self._max:
+        if len(self._lines) + self._queued >= self._max:
             self.stats.gaps += len(lines)
             return
         self._lines.extend(encode(line) for line in lines)
         self.stats.lines += len(lines)
 
+    def hand_over(self) -> None:
+        """Pass what is buffered to the writer thread; never waits for the disk."""
+        if self._events or self._lines:
+            with self._queued_lock:
+                self._queued += len(self._events) + len(self._lines)
+            self._batches.put(_Batch(self._events, self._lines, None))
+            self._events, self._lines = [], []
+            self.stats.flushes += 1
+
     def flush(self) -> None:
-        if self._journal is not None and self._events:
-            self._journal.write("\n".join(self._events) + "\n")
-            self._events.clear()
-            self._journal.flush()
-        if self._decisions is not None and self._lines:
-            self._decisions.write(b"\n".join(self._lines) + b"\n")
-            self._lines.clear()
-            self._decisions.flush()
-        self.stats.flushes += 1
+        """Write everything buffered so far and wait until it is on its way to disk (end of a
+        run, lockstep runs)."""
+        self.hand_over()
+        written = threading.Event()
+        self._batches.put(_Batch([], [], written))
+        written.wait()
+
+    def close(self) -> None:
+        """Flush, then stop the writer thread; the files stay open (their owner closes them)."""
+        if not self._writer.is_alive():
+            return
+        self.flush()
+        self._batches.put(None)
+        self._writer.join()
 
     async def run(self, started: Any = None) -> None:
-        """Flush periodically until cancelled; the final flush happens in ``finally``."""
+        """Hand the buffers over periodically until cancelled, and once more at the end.
+
+        Nothing from the writer thread ever calls back into the event loop: the loop only
+        puts batches on a queue, the thread only takes them off.
+        """
         if started is not None:
             started()
         try:
             while True:
                 await asyncio.sleep(self.flush_interval_s)
-                self.flush()
+                self.hand_over()
         finally:
-            self.flush()
+            self.hand_over()
+
+    def _write_batches(self) -> None:
+        _ordinary_priority()
+        while (batch := self._batches.get()) is not None:
+            if self._journal is not None and batch.events:
+                self._journal.write("\n".join(batch.events) + "\n")
+                self._journal.flush()
+            if self._decisions is not None and batch.lines:
+                self._decisions.write(b"\n".join(batch.lines) + b"\n")
+                self._decisions.flush()
+            with self._queued_lock:
+                self._queued -= len(batch.events) + len(batch.lines)
+            if batch.written is not None:
+                batch.written.set()
+
+
+@dataclass(frozen=True, slots=True)
+class _Batch:
+    events: list[str]
+    lines: list[bytes]
+    written: threading.Event | None
+    """Set once this batch (and everything queued before it) has been written."""
+
+
+def _ordinary_priority() -> None:
+    """Disk writes never compete with a real-time control loop: whatever policy the creating
+    thread had, the writer runs with the ordinary one (Linux applies this per thread)."""
+    if os.sched_getscheduler(0) != os.SCHED_OTHER:
+        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
 
 
 def open_run_files(directory: Path, name: str) -> tuple[Path, IO[str], IO[bytes]]:

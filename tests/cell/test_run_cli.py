@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import pytest
@@ -29,6 +30,9 @@ def _run(tmp_path: Path, text: str, capsys: pytest.CaptureFixture[str]) -> tuple
     (('name = "sim"', 'name = "sim"\nport = "/dev/ttyUSB0"'), "driver.port: unknown key"),
     (('name = "sim"', 'name = "warp-drive"'), "driver.name"),
     (("max_divergence = 0.03", "max_divergence = \"small\""), "phases.PRE_CONTACT.max_divergence"),
+    (("control_period_ms = 2", "control_period_ms = 1e-9"), "timing.control_period_ms"),
+    (("clock_uncertainty_ms = ", "clock_uncertainty_ms = 1e303 #"),
+     "timing.clock_uncertainty_ms"),
 ])
 def test_bad_manifest_exits_2_naming_the_key(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], change: tuple[str, str], needle: str
@@ -66,3 +70,11 @@ def test_simulated_operator_is_refused_on_a_real_device(
     text = text.replace('plant = "mujoco"', "launch = false", 1)
     code, err = _run(tmp_path, text, capsys)
     assert code == 2 and "cell.simulated_operator" in err
+
+
+def test_json_on_stdout_is_machine_readable(capsys: pytest.CaptureFixture[str]) -> None:
+    code = main(["run", "--clock", "virtual", "--cycles", "1", "--no-journal", "--json", "-"])
+    captured = capsys.readouterr()
+    summary = json.loads(captured.out)  # the summary table went to stderr
+    assert code == 0 and summary["cycles"]["verified"] == 1
+    assert "verified" in captured.err

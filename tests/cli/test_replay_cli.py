@@ -105,6 +105,13 @@ def _mutations() -> list[tuple[str, object, str]]:
         ("handshake without offer", mutate(
             lambda d: d["events"].append({"t": 400, "kind": "handshake"})), "offer"),
         ("negative until", mutate(lambda d: d.update(until=-5)), "until"),
+        ("huge until", mutate(lambda d: d.update(until=1e303)), "until"),
+        ("huge event time", mutate(lambda d: d["events"][0].update(t=1e303)), "events[0]"),
+        ("huge action age", mutate(
+            lambda d: d["phases"]["FREE_SPACE"].update(max_action_age_ms=1e303)),
+         "phases.FREE_SPACE.max_action_age_ms"),
+        ("period below a nanosecond", mutate(
+            lambda d: d["timing"].update(control_period_ms=1e-9)), "timing.control_period_ms"),
     ]
 
 

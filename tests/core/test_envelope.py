@@ -248,7 +248,9 @@ def test_bad_action_payloads_are_malformed_with_the_id(actions: dict, words: str
 
 
 @pytest.mark.parametrize(("field", "value"), [("action_dt", 0), ("chunk_id", ""),
-                                              ("replacement_policy", "overwrite")])
+                                              ("replacement_policy", "overwrite"),
+                                              ("first_action_time", 15 * 10**18),
+                                              ("observation_event_time", 2**64 - 1)])
 def test_bad_wire_fields_are_malformed(field: str, value: Any) -> None:
     assert isinstance(wire_result(msgspec.msgpack.encode(wire_dict(**{field: value}))),
                       MalformedChunk)

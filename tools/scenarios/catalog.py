@@ -8,6 +8,7 @@ from tools.scenarios import (
     catalog_identity,
     catalog_network,
     catalog_queue,
+    catalog_recovery,
     catalog_seed,
     catalog_time,
 )
@@ -15,7 +16,7 @@ from tools.scenarios.base import dumps
 
 MODULES = (
     catalog_seed, catalog_identity, catalog_context, catalog_time, catalog_queue,
-    catalog_authority, catalog_network,
+    catalog_authority, catalog_network, catalog_recovery,
 )
 
 
