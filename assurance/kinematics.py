@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 import operator
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from enum import StrEnum
 from pathlib import Path
@@ -196,9 +197,40 @@ class ArmKinematics:
             ValueError: ``q_start`` has the wrong length, is not finite or is outside the
                 limits, or ``target`` is not finite or its rotation is not a rotation.
         """
-        cfg = config or _DEFAULT_IK
         q = self._checked_start(q_start)
         _check_target(target)
+        return self._iterate(target, q, config or _DEFAULT_IK)
+
+    def follow(self, targets: Sequence[Pose], q_start: np.ndarray,
+               config: IKConfig | None = None) -> tuple[np.ndarray, IKResult | None]:
+        """Joint angles for a sequence of nearby TCP targets (a path), each solve warm-started
+        from the previous solutions extrapolated one step, so a smooth path typically costs
+        one pose evaluation per target and stays on one IK branch.
+
+        Returns the solutions (one row per target) and None, or the solutions up to the first
+        target that did not converge and that target's result.
+
+        Raises:
+            ValueError: as :meth:`solve`, for the start or for any target.
+        """
+        cfg = config or _DEFAULT_IK
+        q = self._checked_start(q_start)
+        checked: set[int] = set()  # a path often holds one orientation: check each once
+        for target in targets:
+            _check_target(target, check_rotation=id(target.rotation) not in checked)
+            checked.add(id(target.rotation))
+        solutions = np.empty((len(targets), self.dof))
+        previous: np.ndarray | None = None
+        for row, target in enumerate(targets):
+            seed = q if previous is None else (2.0 * q - previous).clip(self.lower, self.upper)
+            result = self._iterate(target, seed, cfg)
+            if not result.converged:
+                return solutions[:row], result
+            previous, q = q, result.q
+            solutions[row] = q
+        return solutions, None
+
+    def _iterate(self, target: Pose, q: np.ndarray, cfg: IKConfig) -> IKResult:
         tolerance_sq = (cfg.position_tolerance**2, cfg.rotation_tolerance**2)
         for iteration in range(cfg.max_iterations + 1):
             pose, jac = self._pose_and_jacobian(q)
@@ -276,9 +308,11 @@ def _arm_model(config: KinematicsConfig) -> pin.Model:
     return model
 
 
-def _check_target(target: Pose) -> None:
+def _check_target(target: Pose, check_rotation: bool = True) -> None:
     if not all(map(math.isfinite, target.position.tolist())):
         raise ValueError(f"IK target position is not finite: {target.position.tolist()}")
+    if not check_rotation:
+        return
     deviation = (target.rotation @ target.rotation.T - _IDENTITY3).ravel().tolist()
     if not all(abs(value) <= 1e-6 for value in deviation):  # also false for NaN
         raise ValueError("IK target rotation is not orthonormal (or not finite)")
@@ -292,10 +326,7 @@ def _squared_norms(error: np.ndarray) -> tuple[float, float]:
 
 def _pose_error(target: Pose, position: np.ndarray, rotation: np.ndarray) -> np.ndarray:
     """(position error, rotation-vector error), both in base axes, target minus current."""
-    error = np.empty(6)
-    error[:3] = target.position - position
-    error[3:] = pin.log3(target.rotation @ rotation.T)
-    return error
+    return np.concatenate((target.position - position, pin.log3(target.rotation @ rotation.T)))
 
 
 def _dls_step(jac: np.ndarray, error: np.ndarray, damping: float, max_step: float) -> np.ndarray:

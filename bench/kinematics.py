@@ -24,7 +24,9 @@ import numpy as np
 import pinocchio as pin
 
 from assurance import kinematics as kin_module
+from assurance.cartesian import TRANSLATION_UNITS, CartesianMapper
 from assurance.kinematics import ArmKinematics, IKConfig
+from assurance.limits import JointLimits
 from skills.interpolator import SetpointInterpolator
 from skills.trajectory import MotionLimits, decelerate_to_hold, plan_joint_move
 from stubs import robot_model as rm
@@ -95,6 +97,11 @@ def kinematics_benchmarks(samples: int) -> None:
     deltas = rng.normal(0.0, 0.01, size=(samples + 100, 3))
     measure("Cartesian delta (<= ~3 cm) -> joint target",
             lambda i: kin.cartesian_delta_target(home, deltas[i], config=IKConfig()), samples)
+    limits = JointLimits(kin.lower, kin.upper, np.full(6, np.pi), np.full(6, 20.0))
+    mapper = CartesianMapper(kin, limits, TRANSLATION_UNITS)
+    ramps = [np.outer(np.arange(1, 21), rng.normal(0.0, 0.001, 3)) for _ in range(samples + 100)]
+    measure("Cartesian chunk 20x3 (1 mm steps) -> joints, admission's mapping",
+            lambda i: mapper.to_joints(ramps[i], home), max(samples // 10, 50))
 
 
 def trajectory_benchmarks(samples: int) -> None:

@@ -35,7 +35,7 @@ class ClockKind(StrEnum):
 
 SCENARIO_SECTIONS: dict[str, frozenset[str] | None] = {
     "robot": frozenset({"dof", "position_limits", "velocity_limits", "acceleration_limits",
-                        "gripper_index", "gripper_event_threshold"}),
+                        "gripper_index", "gripper_event_threshold", "kinematics", "workspace"}),
     "timing": frozenset({"control_period_ms", "clock_uncertainty_ms", "degrade_after",
                          "state_timeout_ms", "low_watermark_ms", "high_watermark_ms",
                          "request_retry_ms"}),

@@ -26,6 +26,7 @@ from assurance.handshake import HandshakeOffer
 from kernel.core.events import ChunkEvent, HandshakeEvent, ObservationEvent
 from kernel.core.lines import Line, RequestLine
 from kernel.shell.gateway import CoreGateway
+from stubs.policy_server.cartesian import output_for
 from stubs.policy_server.policy import InsertionPolicy, LatencyModel
 
 
@@ -58,6 +59,7 @@ class LocalPolicyLink:
         self._sequence = itertools.count(1)
         self._observations = itertools.count(1)
         self._encoder = msgspec.msgpack.Encoder()
+        self._output = output_for(config.offer.action_frame, config.offer.action_units)
         self.requests = 0
         gateway.listeners.append(self.notify)
 
@@ -95,6 +97,8 @@ class LocalPolicyLink:
         lead_ns = latency_ns + 3_000_000
         qd = robot.qd  # type: ignore[attr-defined]
         actions = cfg.policy.actions(q, lead_ns * 1e-9, self.rng, qd)
+        if self._output is not None:
+            actions = self._output(q, actions)
         epoch = self.gateway.core.state.epoch
         sequence = next(self._sequence)
         return WireChunk(

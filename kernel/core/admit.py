@@ -8,10 +8,16 @@ commit of a plan built beforehand.
 
 from __future__ import annotations
 
+import dataclasses
+
+import msgspec
+import numpy as np
+
 from assurance.clock import ns_to_ms
 from assurance.envelope import Chunk, MalformedChunk, ReplacementPolicy
 from assurance.fallback import IRRELEVANT, refusal_trigger
 from assurance.gates import (
+    AdmissionContext,
     Timing,
     content_reasons,
     context_reasons,
@@ -62,16 +68,64 @@ def _evaluate(state: CoreState, chunk: Chunk, seen: Seen) -> None:
     reasons += context_reasons(chunk, ctx)
     timing = time_verdict(chunk, ctx, t_obs)
     reasons += timing.reasons
-    drift, diverged = divergence_verdict(chunk, ctx, timing.first_due)
-    reasons += diverged
-    plan = _plan(state, chunk, timing, t_obs) if _can_plan(chunk, timing, reasons) else None
+    joints, unmappable = _in_joint_space(state, chunk, reasons)
+    drift, plan = None, None
+    if joints is None:
+        reasons += [R.INFEASIBLE] if unmappable else []
+    else:
+        drift, diverged = divergence_verdict(joints, _joint_context(ctx, joints), timing.first_due)
+        reasons += diverged
+        plan = _plan(state, joints, timing, t_obs) if _can_plan(joints, timing, reasons) else None
     if plan is not None:
         reasons += _feasibility_reasons(state, plan)
     extras = _measurements(state, t_obs, plan, drift)
+    if unmappable:
+        extras["detail"] = unmappable
     if reasons:
         _decide(state, chunk.chunk_id, canonical(reasons), **extras)
         return
     _commit(state, chunk, plan, t_obs, extras)
+
+
+def _in_joint_space(state: CoreState, chunk: Chunk, reasons: list[R]) -> tuple[Chunk | None, str]:
+    """The chunk with joint-space actions, or None and (if it cannot be mapped) why.
+
+    A joint-space session's chunk is itself. A Cartesian chunk is mapped through IK from the
+    state the policy observed; one that is non-finite or of the wrong schema is not mapped (its
+    refusal already says why), one that leaves the workspace or has no IK solution is
+    INFEASIBLE as a whole.
+    """
+    mapper = state.config.cartesian
+    if mapper is None:
+        return chunk, ""
+    if R.NONFINITE in reasons or R.SCHEMA_MISMATCH in reasons:
+        return None, ""
+    mapped = mapper.to_joints(chunk.actions, _anchor(state, chunk))
+    if mapped.joints is None:
+        return None, mapped.detail
+    return msgspec.structs.replace(chunk, actions=mapped.joints), ""
+
+
+def _anchor(state: CoreState, chunk: Chunk) -> np.ndarray:
+    """The joint state a Cartesian chunk is relative to: the one the policy saw, if it says."""
+    measured = state.measured_q
+    seen = chunk.fingerprint_q
+    arm = state.config.limits.arm_mask
+    if seen is None:
+        return measured
+    if len(seen) == measured.shape[0]:
+        return np.array(seen)
+    if len(seen) == int(arm.sum()):
+        anchor = measured.copy()
+        anchor[arm] = seen
+        return anchor
+    return measured
+
+
+def _joint_context(ctx: AdmissionContext, joints: Chunk) -> AdmissionContext:
+    """Gates that read actions see joint targets: a mapped chunk is as wide as the robot."""
+    width = joints.actions.shape[1]
+    return ctx if width == ctx.action_dim else dataclasses.replace(ctx, action_dim=width)
 
 
 def _can_plan(chunk: Chunk, timing: Timing, reasons: list[R]) -> bool:

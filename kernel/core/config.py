@@ -6,6 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from assurance.cartesian import CartesianMapper
 from assurance.handshake import AllowList, ClientHello, Session
 from assurance.limits import JointLimits
 from assurance.reasons import ReasonCode
@@ -57,6 +58,9 @@ class CoreConfig:
     state_timeout_ns: int | None = None
     """Watchdog on state samples; ``None`` disables it (scenario default)."""
     memory_capacity: int = 4096
+    cartesian: CartesianMapper | None = None
+    """Maps Cartesian chunks to joint targets; set exactly when the session's frame is
+    Cartesian (``base_delta``)."""
 
     def __post_init__(self) -> None:
         if self.control_period_ns <= 0:

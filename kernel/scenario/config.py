@@ -26,6 +26,7 @@ from kernel.scenario.fields import (
     text,
     vector,
 )
+from kernel.scenario.kinematics import cartesian_mapper
 from skills.phases import Executor, PhaseBook, PhaseCard, TaskPhase
 
 INITIAL_FINGERPRINT = "scenario-session"
@@ -41,6 +42,7 @@ def build_config(doc: Mapping[str, Any], where: Where) -> CoreConfig:
     uncertainty = number(timing, "clock_uncertainty_ms", where.at("timing"), 0.0, minimum=0)
     session_doc = mapping(doc, "session", where)
     client, session, phase, q0, epoch = _session(session_doc, where.at("session"), limits, period)
+    cartesian = cartesian_mapper(doc, where, limits, client)
     return CoreConfig(
         limits=limits, control_period_ns=ms_to_ns(period),
         clock_uncertainty_ns=ms_to_ns(uncertainty),
@@ -50,6 +52,7 @@ def build_config(doc: Mapping[str, Any], where: Where) -> CoreConfig:
         watermarks=_watermarks(timing, where.at("timing")),
         degrade_after=integer(timing, "degrade_after", where.at("timing"), 3, minimum=1),
         state_timeout_ns=_optional_ms(timing, "state_timeout_ms", where.at("timing")),
+        cartesian=cartesian,
     )
 
 

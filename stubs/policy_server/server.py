@@ -47,6 +47,7 @@ from kernel.wire import (
     message_type,
     payload_vector,
 )
+from stubs.policy_server.cartesian import output_for
 from stubs.policy_server.config import ServerConfig
 from stubs.policy_server.faults import (
     ChunkFaults,
@@ -89,6 +90,7 @@ class PolicyServer:
         self.config = config
         self.stats = ServerStats()
         self.policy = config.policy()
+        self.output = output_for(config.action_frame, config.action_units)
         self.faults = FaultPlan(config.faults)
         self.rng = np.random.default_rng(config.seed)
         self.history: deque[tuple[int, bytes]] = deque(maxlen=64)
@@ -281,6 +283,8 @@ class _Connection:
             observation.t_event - self.client_offset)
         qd = payload_vector(observation.qd, len(cfg.goal)) if observation.qd else None
         actions = self.server.policy.actions(q, cfg.lead_ns / 1e9, self.server.rng, qd)
+        if self.server.output is not None:
+            actions = self.server.output(q, actions)
         if plan.nonfinite:
             actions[len(actions) // 2, 0] = np.nan
         if plan.wrong_dim:

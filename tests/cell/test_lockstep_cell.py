@@ -29,3 +29,13 @@ def test_lockstep_runs_are_byte_identical(tmp_path: Path) -> None:
     first, second = run_dir(tmp_path / "a"), run_dir(tmp_path / "b")
     assert (first / "decisions.jsonl").read_bytes() == (second / "decisions.jsonl").read_bytes()
     assert (first / "journal.jsonl").read_bytes() == (second / "journal.jsonl").read_bytes()
+
+
+def test_a_cartesian_policy_completes_a_verified_cycle_that_replays(tmp_path: Path) -> None:
+    """The policy proposes TCP displacements; every chunk is mapped through IK in admission."""
+    summary = asyncio.run(run_lockstep(
+        manifest("sim-ur5e-cartesian.toml", 1, ClockKind.VIRTUAL), tmp_path))
+    assert summary["cycles"]["verified"] == 1
+    admitted = sum(v for k, v in summary["decisions"].items() if k != "rejected")
+    assert admitted > 5
+    assert replays_identically(run_dir(tmp_path))

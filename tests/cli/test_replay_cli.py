@@ -58,6 +58,9 @@ def test_entry_point_runs_as_a_process() -> None:
     assert '"chunk_id":"C41"' in done.stdout
 
 
+CARTESIAN = {"action_frame": "base_delta", "action_units": "m", "action_dim": 3}
+
+
 def _mutations() -> list[tuple[str, object, str]]:
     """(case, document or mutator, text the error must contain)."""
     def mutate(fn):
@@ -110,6 +113,19 @@ def _mutations() -> list[tuple[str, object, str]]:
         ("huge action age", mutate(
             lambda d: d["phases"]["FREE_SPACE"].update(max_action_age_ms=1e303)),
          "phases.FREE_SPACE.max_action_age_ms"),
+        ("cartesian without a model", mutate(lambda d: d["session"].update(CARTESIAN)),
+         "robot: needs 'kinematics'"),
+        ("unknown kinematic model", mutate(lambda d: d["robot"].update(kinematics="kuka")),
+         "robot.kinematics: unknown model 'kuka'"),
+        ("cartesian units", mutate(lambda d: (d["robot"].update(kinematics="ur5e"),
+                                              d["session"].update(CARTESIAN, action_units="rad"))),
+         "session.action_units"),
+        ("cartesian width", mutate(lambda d: (d["robot"].update(kinematics="ur5e"),
+                                              d["session"].update(CARTESIAN, action_dim=6))),
+         "session.action_dim: must be 3"),
+        ("workspace inverted", mutate(lambda d: d["robot"].update(
+            workspace={"lower": [0.0, 0.0, 1.0], "upper": [1.0, 1.0, 0.0]})),
+         "robot.workspace.lower[2]"),
         ("period below a nanosecond", mutate(
             lambda d: d["timing"].update(control_period_ms=1e-9)), "timing.control_period_ms"),
     ]
