@@ -6,6 +6,7 @@ import argparse
 import asyncio
 import dataclasses
 import json
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -29,6 +30,10 @@ def add_commands(commands: Any) -> None:
                      help="also write the summary as JSON to FILE ('-' for stdout)")
     run.add_argument("--journal-dir", help="where run directories go (default: the manifest's)")
     run.add_argument("--no-journal", action="store_true", help="do not record a journal")
+    run.add_argument("--log-format", choices=("auto", "json", "console"), default="auto",
+                     help="log lines on stderr: JSON (auto when stderr is not a terminal, e.g. "
+                          "under systemd) or plain console lines")
+    run.add_argument("--log-level", default="INFO", help="DEBUG, INFO, WARNING, ERROR")
     run.set_defaults(handler=run_command)
     serve = commands.add_parser(
         "serve-policy", help="run the reference policy server (scripted insertion policy)",
@@ -39,6 +44,7 @@ def add_commands(commands: Any) -> None:
 
 
 def run_command(args: argparse.Namespace) -> int:
+    _configure_logging(args)
     manifest = _with_overrides(load_manifest(args.manifest), args)
     journal_dir = None if args.no_journal or not manifest.journal.enabled else Path(
         args.journal_dir or manifest.journal.directory)
@@ -47,6 +53,18 @@ def run_command(args: argparse.Namespace) -> int:
     _output(summary, args.json_out)
     cycles = summary["cycles"]
     return 0 if cycles["verified"] == cycles["attempted"] == manifest.cell.cycles else 1
+
+
+def _configure_logging(args: argparse.Namespace) -> None:
+    """Structured log lines go to stderr (stdout may carry the JSON summary)."""
+    from kernel.shell.logging import configure_logging
+
+    json_lines = args.log_format == "json" or (
+        args.log_format == "auto" and not sys.stderr.isatty())
+    try:
+        configure_logging(args.log_level, sys.stderr, json=json_lines)
+    except ValueError as error:
+        raise ManifestError(f"--log-level: {error}") from None
 
 
 def _with_overrides(manifest: Manifest, args: argparse.Namespace) -> Manifest:

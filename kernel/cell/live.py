@@ -22,6 +22,7 @@ import structlog
 from kernel.cell.build import POLICY_ACCELERATION, POLICY_SPEED, offer_for
 from kernel.cell.report import CycleProgress
 from kernel.cell.session import RunContext, bring_up, finish, open_run, report_progress
+from kernel.core.events import LinkEvent
 from kernel.manifest import Manifest
 from kernel.shell.client import RobotClient
 from kernel.shell.link_types import ClientConfig
@@ -122,8 +123,7 @@ class _Loop:
 async def _supervise(context: RunContext, client: RobotClient, loop: _Loop,
                      failures: list[str]) -> None:
     def failed(name: str, error: BaseException) -> None:
-        failures.append(f"{name}: {type(error).__name__}")
-        log.error("task failed", task=name, error=type(error).__name__)
+        task_failed(context, failures, name, error)
 
     done = asyncio.Event()
 
@@ -153,6 +153,18 @@ async def _supervise(context: RunContext, client: RobotClient, loop: _Loop,
         await done.wait()
         client.stop()
         await supervisor.shutdown()
+
+
+def task_failed(context: RunContext, failures: list[str], name: str,
+                error: BaseException) -> None:
+    """A supervised task died: never silently. A dead policy link is a lost link for the core
+    (LINK_LOST → DEGRADED: the arm holds until a new handshake); the critical tasks (control,
+    recorder) end the run, and the run's shutdown holds the arm and closes the device."""
+    failures.append(f"{name}: {type(error).__name__}")
+    log.error("task failed", task=name, error=type(error).__name__)
+    if name == "policy-link":
+        gateway = context.cell.gateway
+        gateway.feed(LinkEvent(t=gateway.now_ns(), status="down"))
 
 
 @contextlib.contextmanager

@@ -169,3 +169,23 @@ def test_bring_up_holds_a_device_parked_away_from_home(tmp_path: Path) -> None:
         cell.world.close()
         context.files.close()
     assert np.abs(cell.controller.motion.commanded - parked).max() < 0.01
+
+
+def test_a_dead_policy_link_task_is_a_lost_link_for_the_core(tmp_path: Path) -> None:
+    from kernel.cell.build import offer_for
+    from kernel.cell.live import task_failed
+    from kernel.core.events import HandshakeEvent
+
+    context = _context(tmp_path)
+    gateway = context.cell.gateway
+    try:
+        gateway.feed(HandshakeEvent(t=gateway.now_ns(), offer=offer_for(context.manifest)))
+        assert context.cell.core.state.session is not None
+        failures: list[str] = []
+        task_failed(context, failures, "policy-link", ConnectionResetError("peer vanished"))
+        state = context.cell.core.state
+        assert failures == ["policy-link: ConnectionResetError"]
+        assert state.session is None and str(state.fallback.mode) == "DEGRADED"
+    finally:
+        context.cell.world.close()
+        context.files.close()
