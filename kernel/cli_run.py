@@ -62,7 +62,7 @@ def _configure_logging(args: argparse.Namespace) -> None:
     json_lines = args.log_format == "json" or (
         args.log_format == "auto" and not sys.stderr.isatty())
     try:
-        configure_logging(args.log_level, sys.stderr, json=json_lines)
+        configure_logging(args.log_level, json=json_lines)
     except ValueError as error:
         raise ManifestError(f"--log-level: {error}") from None
 

@@ -79,11 +79,19 @@ class SetpointInterpolator:
         self._acceleration_over_jerk = limits.acceleration / limits.jerk
         self.reset(q0)
 
-    def reset(self, q: np.ndarray, qd: np.ndarray | None = None) -> None:
-        """Restart from a measured state (at rest unless ``qd`` is given); forget the stream."""
+    def reset(self, q: np.ndarray, qd: np.ndarray | None = None,
+              qdd: np.ndarray | None = None) -> None:
+        """Restart from a state (at rest unless ``qd``/``qdd`` are given); forget the stream.
+
+        A start acceleration beyond the limits is clipped to them: the state comes from another
+        owner's profile, planned with its own limits.
+        """
         position = checked_position(q, self.limits, "interpolator start")
         velocity = None if qd is None else checked_vector(qd, self.limits.dof, "start velocity")
-        self._inp = ruckig_input(self.limits, position, velocity)
+        acceleration = None if qdd is None else np.clip(
+            checked_vector(qdd, self.limits.dof, "start acceleration"),
+            -self.limits.acceleration, self.limits.acceleration)
+        self._inp = ruckig_input(self.limits, position, velocity, acceleration)
         self._inp.target_position = position
         # Each joint on its own time-optimal profile: synchronising joints that must arrive
         # with different non-zero velocities lands ruckig in "blocked" duration intervals,
@@ -96,7 +104,8 @@ class SetpointInterpolator:
         self._last_t_ns: int | None = None
         self._arrived = np.full(self.limits.dof, qd is None)
         zeros = np.zeros(self.limits.dof)
-        self._setpoint = Setpoint(0, position, zeros if velocity is None else velocity, zeros)
+        self._setpoint = Setpoint(0, position, zeros if velocity is None else velocity,
+                                  zeros if acceleration is None else acceleration)
         self._otg.reset()
 
     @property

@@ -76,7 +76,7 @@ class TaskMachine:
         operator acts on a suspended task (a takeover ends by the operator's release, an
         aborted task stays aborted).
         """
-        if target is P.SAFE_HOLD and self.phase not in SUSPENDED:
+        if target is P.SAFE_HOLD and self.phase not in SUSPENDED and self.phase is not P.ABORT:
             return self._move(P.SAFE_HOLD, ReasonCode.HOLD_REQUESTED)
         reasons: list[ReasonCode] = []
         missing = self._missing(target, evidence)
@@ -92,8 +92,11 @@ class TaskMachine:
         return self._move(target, ReasonCode.GUARD_PASSED)
 
     def suspend(self, target: TaskPhase, trigger: ReasonCode) -> TaskDecision | None:
-        """The fallback machine took authority: mirror SAFE_HOLD / HUMAN_RECOVERY."""
-        if self.phase is target:
+        """The fallback machine took authority: mirror SAFE_HOLD / HUMAN_RECOVERY.
+
+        An aborted task is not mirrored: it has nothing to suspend, and leaves ABORT only for
+        IDLE (the fallback machine still holds the arm)."""
+        if self.phase is target or self.phase is P.ABORT:
             return None
         return self._move(target, trigger)
 

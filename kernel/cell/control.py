@@ -24,7 +24,6 @@ from kernel.cell.motion import MotionController
 from kernel.cell.operator import SimulatedOperator
 from kernel.cell.world import World
 from kernel.core.events import ControllerEvent, PhaseEvent, StateEvent
-from kernel.core.tick import TickCommand
 from kernel.shell.gateway import CoreGateway
 from kernel.summary import CycleResult
 from skills.assembly import AssemblyRunner, Sensed
@@ -69,6 +68,21 @@ class CellController:
         # later event, and the core only ever moves forward in time. Everything from here to
         # the write is synchronous, so the whole decision of this period shares one instant.
         t = self.gateway.now_ns()
+        try:
+            command = self._decide(sample, t)
+        except Exception:
+            # A software fault never leaves the last command live: stop the device, then let
+            # the error end the run (the supervisor reports it).
+            await self._write(Command(kind=CommandKind.STOP, gripper=self.runner.gripper))
+            raise
+        applied = await self._write(command)
+        self._count(applied)
+        self.world.advance()
+        self.counters.ticks += 1
+        self._maybe_next_cycle(t)
+
+    def _decide(self, sample: StateSample, t: int) -> Command:
+        """Sense, let the operator and the cycle runner speak, ask the core, shape the command."""
         sensed = self._sense(sample, t)
         self._report_driver_fault(t)
         state = self.gateway.core.state
@@ -78,12 +92,7 @@ class CellController:
         request = self.runner.update(sensed, state.task.phase, state.fallback.mode)
         if request is not None:
             self.gateway.feed(PhaseEvent(t=t, to=request.to, evidence=request.evidence))
-        decision = self.gateway.tick(t)
-        applied = await self._write(await self._command(decision, sensed))
-        self._count(applied)
-        self.world.advance()
-        self.counters.ticks += 1
-        self._maybe_next_cycle(t)
+        return self.motion.command(self.gateway.tick(t), sensed)
 
     async def _read(self) -> StateSample:
         """A fresh sample, or (the driver just faulted) the last one, marked with the fault."""
@@ -91,15 +100,6 @@ class CellController:
             return await self.driver.read()
         except DriverError:
             return await self.driver.read()  # FAULT now: the lifecycle answers from its record
-
-    async def _command(self, decision: TickCommand, sensed: Sensed) -> Command:
-        """The motion layer's command; if it fails, the device is stopped before the error
-        propagates (and ends the run), so a software fault never leaves the last command live."""
-        try:
-            return self.motion.command(decision, sensed)
-        except Exception:
-            await self._write(Command(kind=CommandKind.STOP, gripper=self.runner.gripper))
-            raise
 
     async def _write(self, command: Command) -> Applied | None:
         """Send the command; a failing device is FAULT from now on, reported next tick."""

@@ -57,10 +57,12 @@ async def run_live(manifest: Manifest, journal_dir: Path | None,
         # honoured before the first tick, through the same orderly shutdown.
         with _stop_on_signals(loop):
             await bring_up(context)  # a device that is not there fails here, before anything
-            server = _policy_server(manifest, context.cell.policy_goal)
-            client = RobotClient(ClientConfig(url=_url(manifest, server)), context.cell.gateway)
-            context.cell.gateway.listeners.append(client.notify)
             if not loop.stop_requested:
+                server = _policy_server(manifest, context.cell.policy_goal)
+            if not loop.stop_requested:
+                client = RobotClient(ClientConfig(url=_url(manifest, server)),
+                                     context.cell.gateway)
+                context.cell.gateway.listeners.append(client.notify)
                 await _supervise(context, client, loop, failures)
     finally:
         service.stopping("holding the arm and closing the device")
@@ -74,7 +76,8 @@ async def run_live(manifest: Manifest, journal_dir: Path | None,
         context.recorder.close()
         context.files.close()
     return finish(context, {
-        "clock": "wall", "timed_out": not context.cell.controller.finished,
+        "clock": "wall", "stopped": loop.stop_requested,
+        "timed_out": not (context.cell.controller.finished or loop.stop_requested),
         "task_failures": failures, "loop": {"realtime": realtime.summary()},
         "link": {k: v for k, v in client.counters.snapshot().items() if v} if client else {},
         "service": {"notify": service.enabled, "sent": service.stats.sent,

@@ -27,7 +27,10 @@ from skills.planner import PlanningError
 from skills.trajectory import MotionLimits
 
 RESUME_AT_REST_RAD_S = 1e-3
-"""Interpolator speed below which a paused planner move may be re-planned from rest."""
+RESUME_AT_REST_RAD_S2 = 1e-2
+RESUME_SETTLED_RAD = 1e-6
+"""When the interpolator counts as settled, so a paused planner move may be re-planned from
+rest: this close to its latched target, this slow, this little acceleration."""
 
 
 class MotionController:
@@ -39,7 +42,8 @@ class MotionController:
         self.runner, self.contact = runner, contact
         self.period_ns, self.dt_s = period_ns, period_ns * 1e-9
         self.impedance = impedance
-        self.interpolator = SetpointInterpolator(limits, self._inside(q0))
+        start = np.clip(np.asarray(q0, dtype=float)[: limits.dof], limits.lower, limits.upper)
+        self.interpolator = SetpointInterpolator(limits, start)
         self.commanded = self.interpolator.setpoint.position.copy()
         self._planner_had_tick = False
         self._pending_resume = False
@@ -81,13 +85,22 @@ class MotionController:
         sample = self.runner.planner_setpoint(self.dt_s)
         if sample is None:  # the planner owns the tick but has no move: hold still
             return self._interpolated(self.commanded, s)
-        self.interpolator.reset(sample.position, sample.velocity)
+        self.interpolator.reset(sample.position, sample.velocity, sample.acceleration)
         return self._position(sample.position)
 
     def _resume_planner_move(self) -> bool:
-        """Re-plan the planner's move from the interpolator's state; False: not at rest yet."""
+        """Re-plan the planner's move from the interpolator's state; False: not settled yet.
+
+        Settled means arrived at the latched target with velocity *and* acceleration about
+        zero: a velocity crossing zero on an overshoot still carries full acceleration, and a
+        rest-to-rest plan from there would be a jerk step.
+        """
         setpoint = self.interpolator.setpoint
-        if float(np.abs(setpoint.velocity).max()) > RESUME_AT_REST_RAD_S:
+        settled = (
+            float(np.abs(setpoint.position - self._resume_target).max()) <= RESUME_SETTLED_RAD
+            and float(np.abs(setpoint.velocity).max()) <= RESUME_AT_REST_RAD_S
+            and float(np.abs(setpoint.acceleration).max()) <= RESUME_AT_REST_RAD_S2)
+        if not settled:
             return False
         try:
             self.runner.resume_move_from(setpoint.position)
@@ -124,6 +137,10 @@ class MotionController:
         self.commanded = self.interpolator.setpoint.position.copy()
 
     def _inside(self, q: np.ndarray) -> np.ndarray:
-        """A measured position may sit a hair past a limit (tracking overshoot, a human push)."""
-        return np.clip(np.asarray(q, dtype=float)[: self.limits.dof], self.limits.lower,
-                       self.limits.upper)
+        """A measured position may sit a hair past a limit (tracking overshoot, a human push)
+        or, from a faulty device, not be a number: restart inside the limits, keeping the last
+        commanded value for any joint that is not finite."""
+        position = np.asarray(q, dtype=float)[: self.limits.dof].copy()
+        invalid = ~np.isfinite(position)
+        position[invalid] = self.commanded[invalid]
+        return np.clip(position, self.limits.lower, self.limits.upper)

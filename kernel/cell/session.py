@@ -14,7 +14,7 @@ from typing import IO, Any
 
 import numpy as np
 
-from drivers.base import ControlConfig
+from drivers.base import ControlConfig, DriverError
 from kernel.cell.build import Cell, build_cell
 from kernel.cell.report import CycleProgress
 from kernel.journal import header
@@ -83,7 +83,10 @@ async def bring_up(context: RunContext) -> None:
     await context.cell.driver.activate()
     # A real device starts wherever it was parked, not at the layout's home: the first command
     # must hold that pose, so motion restarts from the first measured sample.
-    sample = await context.cell.driver.read()
+    try:
+        sample = await context.cell.driver.read()
+    except DriverError:
+        return  # FAULT: the first tick reports it, and the core stops the device
     if sample.q:
         context.cell.controller.motion.restart_from(np.array(sample.q))
 
@@ -111,7 +114,8 @@ def finish(context: RunContext, extra: dict[str, Any]) -> dict[str, Any]:
     summary.extra.update(extra)
     summary.extra["journal"] = {"directory": str(context.files.directory or "-"),
                                 "events": context.recorder.stats.events,
-                                "gaps": context.recorder.stats.gaps}
+                                "gaps": context.recorder.stats.gaps,
+                                "error": context.recorder.stats.error}
     summary.extra["driver"] = {"refused_writes": context.cell.controller.counters.refused_writes,
                                "faults": "; ".join(context.cell.controller.counters.driver_faults)
                                or "none"}

@@ -80,10 +80,11 @@ def on_phase(state: CoreState, event: PhaseEvent) -> None:
     before = state.task.phase
     decision = state.task.request(target, event.evidence, by, fsm_authority)
     state.log_task(decision)
-    if not decision.accepted:
-        return
+    # A hold request holds the arm even when the task cannot mirror it (an aborted task).
     if target is TaskPhase.SAFE_HOLD and state.fire(R.HOLD_REQUESTED):
         return  # the fallback transition purged the queue already
+    if not decision.accepted:
+        return
     if before != state.task.phase:
         state.purge(decision.trigger)  # actions proposed for the old phase never run in the new
         state.hold_q = None

@@ -34,6 +34,12 @@ class RecorderStats:
     lines: int = 0
     gaps: int = 0
     flushes: int = 0
+    error: str | None = None
+    """The first write error (exception type and errno text); everything after it is a gap."""
+
+
+class RecorderError(RuntimeError):
+    """The journal or the decision log could not be written: the run's record is incomplete."""
 
 
 class Recorder:
@@ -51,6 +57,7 @@ class Recorder:
         self._batches: queue.SimpleQueue[_Batch | None] = queue.SimpleQueue()
         self._queued = 0  # items handed over and not yet written (the bound covers them too)
         self._queued_lock = threading.Lock()
+        self._failure: BaseException | None = None
         self._writer = threading.Thread(target=self._write_batches, name="warden-recorder",
                                         daemon=True)
         self._writer.start()
@@ -61,7 +68,7 @@ class Recorder:
         if self._journal is None:
             return
         if len(self._events) + self._queued >= self._max:
-            self.stats.gaps += 1
+            self._count_gap(1)
             return
         self._events.append(json.dumps(event_record(event), allow_nan=True))
         self.stats.events += 1
@@ -70,13 +77,23 @@ class Recorder:
         if self._decisions is None or not lines:
             return
         if len(self._lines) + self._queued >= self._max:
-            self.stats.gaps += len(lines)
+            self._count_gap(len(lines))
             return
         self._lines.extend(encode(line) for line in lines)
         self.stats.lines += len(lines)
 
     def hand_over(self) -> None:
-        """Pass what is buffered to the writer thread; never waits for the disk."""
+        """Pass what is buffered to the writer thread; never waits for the disk.
+
+        Raises:
+            RecorderError: an earlier write failed (the recorder task is critical: the run
+                ends, holding the arm, rather than go on with a record that has a hole).
+        """
+        if self._failure is not None:
+            self._count_gap(len(self._events) + len(self._lines))  # never to be written
+            self._events, self._lines = [], []
+            raise RecorderError(f"cannot write the run record: {self.stats.error}") from (
+                self._failure)
         if self._events or self._lines:
             with self._queued_lock:
                 self._queued += len(self._events) + len(self._lines)
@@ -87,10 +104,15 @@ class Recorder:
     def flush(self) -> None:
         """Write everything buffered so far and wait until it is on its way to disk (end of a
         run, lockstep runs)."""
-        self.hand_over()
+        try:
+            self.hand_over()
+        except RecorderError:
+            return  # nothing more will be written; the error is in stats
         written = threading.Event()
         self._batches.put(_Batch([], [], written))
-        written.wait()
+        while not written.wait(0.5):
+            if not self._writer.is_alive():
+                return
 
     def close(self) -> None:
         """Flush, then stop the writer thread; the files stay open (their owner closes them)."""
@@ -101,33 +123,48 @@ class Recorder:
         self._writer.join()
 
     async def run(self, started: Any = None) -> None:
-        """Hand the buffers over periodically until cancelled, and once more at the end.
+        """Hand the buffers over periodically until cancelled (the last hand-over is
+        :meth:`close`'s). Raises :class:`RecorderError` once a write has failed.
 
         Nothing from the writer thread ever calls back into the event loop: the loop only
         puts batches on a queue, the thread only takes them off.
         """
         if started is not None:
             started()
-        try:
-            while True:
-                await asyncio.sleep(self.flush_interval_s)
-                self.hand_over()
-        finally:
+        while True:
+            await asyncio.sleep(self.flush_interval_s)
             self.hand_over()
 
     def _write_batches(self) -> None:
         _ordinary_priority()
         while (batch := self._batches.get()) is not None:
-            if self._journal is not None and batch.events:
-                self._journal.write("\n".join(batch.events) + "\n")
-                self._journal.flush()
-            if self._decisions is not None and batch.lines:
-                self._decisions.write(b"\n".join(batch.lines) + b"\n")
-                self._decisions.flush()
-            with self._queued_lock:
-                self._queued -= len(batch.events) + len(batch.lines)
-            if batch.written is not None:
-                batch.written.set()
+            count = len(batch.events) + len(batch.lines)
+            try:
+                if self._failure is None:
+                    self._write(batch)
+                else:
+                    self._count_gap(count)
+            except Exception as error:  # a full or failing disk: record it, never die
+                self._failure = error
+                self.stats.error = f"{type(error).__name__}: {error}"
+                self._count_gap(count)
+            finally:
+                with self._queued_lock:
+                    self._queued -= count
+                if batch.written is not None:
+                    batch.written.set()
+
+    def _write(self, batch: _Batch) -> None:
+        if self._journal is not None and batch.events:
+            self._journal.write("\n".join(batch.events) + "\n")
+            self._journal.flush()
+        if self._decisions is not None and batch.lines:
+            self._decisions.write(b"\n".join(batch.lines) + b"\n")
+            self._decisions.flush()
+
+    def _count_gap(self, count: int) -> None:
+        with self._queued_lock:  # stats are also counted on the loop thread
+            self.stats.gaps += count
 
 
 @dataclass(frozen=True, slots=True)

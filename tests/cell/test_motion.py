@@ -59,13 +59,16 @@ def _controller(runner: _Runner | None = None) -> MotionController:
 
 
 @pytest.mark.parametrize("tick", [STOP, HUMAN], ids=["stop", "human-hold"])
-def test_device_commands_survive_a_measured_state_past_a_limit(tick: TickCommand) -> None:
+@pytest.mark.parametrize("measured", [[1.0002, 0.0, -1.003, 0.0, 0.0, 0.0],
+                                      [np.nan, 0.0, 0.2, np.inf, 0.0, 0.0]],
+                         ids=["past-a-limit", "not-finite"])
+def test_device_commands_survive_a_bad_measured_state(tick: TickCommand,
+                                                      measured: list[float]) -> None:
     motion = _controller()
-    overshoot = np.array([1.0002, 0.0, -1.003, 0.0, 0.0, 0.0])
-    command = motion.command(tick, _sensed(0, overshoot))
+    command = motion.command(tick, _sensed(0, np.array(measured)))
     assert command.kind is (CommandKind.STOP if tick is STOP else CommandKind.HOLD)
     assert np.all(motion.commanded <= INTERPOLATOR.upper)
-    assert np.all(motion.commanded >= INTERPOLATOR.lower)
+    assert np.all(motion.commanded >= INTERPOLATOR.lower)  # False for NaN too
 
 
 def test_restart_from_holds_the_measured_pose_not_the_initial_one() -> None:
@@ -77,11 +80,11 @@ def test_restart_from_holds_the_measured_pose_not_the_initial_one() -> None:
     assert np.allclose(command.q, parked)
 
 
-def _velocities(positions: list[np.ndarray]) -> np.ndarray:
-    return np.diff(np.array(positions), axis=0) / (PERIOD_NS * 1e-9)
-
-
-def test_a_paused_planner_move_resumes_without_a_velocity_step() -> None:
+@pytest.mark.parametrize(("moving", "held"), [(150, 400), (179, 1), (60, 7), (300, 30)],
+                         ids=["long-hold", "one-tick", "accelerating", "braking"])
+def test_a_paused_planner_move_resumes_within_the_limits(moving: int, held: int) -> None:
+    """Interrupted at any point of its profile, for any time, the move resumes without a step
+    in velocity or acceleration: the discrete jerk stays within the owners' jerk limits."""
     q0, q1 = np.zeros(6), np.array([0.9, 0.0, 0.0, 0.0, 0.0, 0.0])
     runner = _Runner(PlannedMove(plan_joint_move(q0, q1, PLANNER)))
     motion = _controller(runner)
@@ -93,13 +96,15 @@ def test_a_paused_planner_move_resumes_without_a_velocity_step() -> None:
             positions.append(np.array(motion.command(tick, _sensed(t, motion.commanded)).q))
             t += PERIOD_NS
 
-    run(PLANNER_TICK, 150)  # mid-move, at speed
-    held = TickCommand(Cmd.HOLD, Owner.FALLBACK, positions[-1].copy(), None, None)
-    run(held, 400)  # a fallback hold brings the arm to rest
-    run(PLANNER_TICK, 1500)  # recovery: the planner owns the tick again
-    velocity = _velocities(positions)
-    acceleration = np.abs(np.diff(velocity, axis=0)) / (PERIOD_NS * 1e-9)
-    assert acceleration.max() <= INTERPOLATOR.acceleration.max() * 1.05
+    run(PLANNER_TICK, moving)
+    hold = TickCommand(Cmd.HOLD, Owner.FALLBACK, positions[-1].copy(), None, None)
+    run(hold, held)  # a fallback takes the tick, latched where the arm was
+    run(PLANNER_TICK, 2500)  # recovery: the planner owns the tick again
+    dt = PERIOD_NS * 1e-9
+    jerk = np.abs(np.diff(np.array(positions), n=3, axis=0)).max() / dt**3
+    assert jerk <= max(INTERPOLATOR.jerk.max(), PLANNER.jerk.max()) * 1.05
+    acceleration = np.abs(np.diff(np.array(positions), n=2, axis=0)).max() / dt**2
+    assert acceleration <= INTERPOLATOR.acceleration.max() * 1.05
     assert np.allclose(positions[-1], q1, atol=1e-6)  # and the move still reaches its target
 
 
@@ -125,12 +130,21 @@ class _BrokenMotion:
         raise RuntimeError("motion layer bug")
 
 
+class _BrokenRunner:
+    gripper = 0.0
+    done = False
+
+    def update(self, *args: Any) -> None:
+        raise RuntimeError("cycle runner bug")
+
+
 def _context(tmp: Path):  # type: ignore[no-untyped-def]
     return open_run(manifest("sim-ur5e.toml", 1, ClockKind.VIRTUAL), VirtualClock(), tmp, None)
 
 
-def test_a_failing_motion_layer_stops_the_device_before_the_error_ends_the_run(
-        tmp_path: Path) -> None:
+@pytest.mark.parametrize("broken", ["motion", "runner"])
+def test_a_software_fault_in_the_tick_stops_the_device_before_the_error_ends_the_run(
+        tmp_path: Path, broken: str) -> None:
     context = _context(tmp_path)
     controller = context.cell.controller
 
@@ -139,8 +153,11 @@ def test_a_failing_motion_layer_stops_the_device_before_the_error_ends_the_run(
         controller.start()
         recording = _Recording(controller.driver)
         controller.driver = recording  # type: ignore[assignment]
-        controller.motion = _BrokenMotion()  # type: ignore[assignment]
-        with pytest.raises(RuntimeError, match="motion layer bug"):
+        if broken == "motion":
+            controller.motion = _BrokenMotion()  # type: ignore[assignment]
+        else:
+            controller.runner = _BrokenRunner()  # type: ignore[assignment]
+        with pytest.raises(RuntimeError, match=f"{broken} .*bug"):
             await controller.tick()
         assert [c.kind for c in recording.written] == [CommandKind.STOP]
 

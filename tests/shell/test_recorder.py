@@ -7,8 +7,10 @@ import io
 import json
 import threading
 
+import pytest
+
 from kernel.core.events import StateEvent
-from kernel.shell.recorder import Recorder
+from kernel.shell.recorder import Recorder, RecorderError
 
 
 class _StalledDisk(io.StringIO):
@@ -49,3 +51,46 @@ async def test_a_stalled_write_leaves_the_loop_running() -> None:
     assert not disk.gave_up
     records = [json.loads(line) for line in disk.getvalue().splitlines()]
     assert [r["t"] for r in records] == [1, 2]  # both events, in order, none lost at shutdown
+
+
+class _FullDisk(io.StringIO):
+    """A journal on a disk that fills up after ``room`` writes."""
+
+    def __init__(self, room: int) -> None:
+        super().__init__()
+        self.room = room
+
+    def write(self, text: str) -> int:
+        if self.room <= 0:
+            raise OSError(28, "No space left on device")
+        self.room -= 1
+        return super().write(text)
+
+
+def _state(t_ms: int) -> StateEvent:
+    return StateEvent(t=t_ms * 1_000_000, q=(0.0,) * 6)
+
+
+async def test_a_failing_disk_ends_the_run_and_counts_what_was_lost() -> None:
+    disk = _FullDisk(room=1)  # the head line fits, nothing after it
+    recorder = Recorder(disk, None, head={"format": "warden-journal/1"},
+                        flush_interval_s=0.001)
+    recorder.event(_state(1))
+    recorder.event(_state(2))
+    with pytest.raises(RecorderError, match="No space left"):
+        await asyncio.wait_for(recorder.run(), timeout=10)
+    recorder.event(_state(3))
+    recorder.close()  # returns: the writer never dies, nothing waits on it forever
+    assert recorder.stats.gaps == 3 and "OSError" in (recorder.stats.error or "")
+    assert disk.getvalue().count("\n") == 1  # only the head
+
+
+def test_close_without_a_running_loop_flushes_everything() -> None:
+    disk = io.StringIO()
+    recorder = Recorder(disk, None)
+    for t in range(5):
+        recorder.event(_state(t))
+    recorder.close()
+    recorder.close()  # idempotent
+    assert [json.loads(line)["t"] for line in disk.getvalue().splitlines()] == [0, 1, 2, 3, 4]
+    assert recorder.stats.gaps == 0 and recorder.stats.error is None

@@ -40,6 +40,38 @@ def aborted_task_is_not_resumed() -> ScenarioSpec:
     )
 
 
+def aborted_task_stays_aborted() -> ScenarioSpec:
+    return ScenarioSpec(
+        name="aborted_task_stays_aborted",
+        description="An aborted task is not mirrored into SAFE_HOLD by a release or a later "
+                    "takeover, and no recovery validates it back to work; a hold request still "
+                    "holds the arm (the fallback machine), the task stays ABORT.",
+        events=[st(0, list(Q0)), event(10, "operator", action="takeover"),
+                event(20, "operator", action="abort"),
+                event(24, "operator", action="release"),
+                event(30, "operator", action="accept_recovery"),
+                event(40, "phase", to="PRE_CONTACT"),
+                event(50, "phase", to="SAFE_HOLD", by="policy")],
+        until=60,
+        expect=[
+            {"kind": "transition", "machine": "fallback", "from": "HUMAN_RECOVERY",
+             "to": "SAFE_HOLD", "trigger": "OPERATOR_RELEASE", "t": 24},
+            {"kind": "transition", "machine": "fallback", "from": "SAFE_HOLD", "to": "RUNNING",
+             "t": 30},
+            {"kind": "transition", "machine": "task", "t": 40, "accepted": False,
+             "requested": "PRE_CONTACT", "trigger": "GUARD_FAILED"},
+            {"kind": "transition", "machine": "fallback", "from": "RUNNING", "to": "SAFE_HOLD",
+             "trigger": "HOLD_REQUESTED", "t": 50},
+            {"kind": "tick", "t": 58, "phase": "ABORT", "mode": "SAFE_HOLD"},
+        ],
+        forbid=[*({"kind": "transition", "machine": "task", "from": "ABORT", "to": phase}
+                  for phase in ("SAFE_HOLD", "HUMAN_RECOVERY", "VALIDATE", "PRE_CONTACT")),
+                {"kind": "transition", "machine": "task", "t_min": 21,
+                 "trigger": "GUARD_PASSED"},
+                _NO_POLICY_MOTION],
+    )
+
+
 def contact_resumes_before_contact() -> ScenarioSpec:
     return ScenarioSpec(
         name="contact_resumes_before_contact",
@@ -154,6 +186,7 @@ def every_recovery_validates() -> ScenarioSpec:
     )
 
 
-SCENARIOS = [aborted_task_is_not_resumed, contact_resumes_before_contact,
+SCENARIOS = [aborted_task_is_not_resumed, aborted_task_stays_aborted,
+             contact_resumes_before_contact,
              validate_to_contact_needs_evidence, watchdog_without_any_state,
              rejected_handshake_degrades_at_once, every_recovery_validates]
