@@ -16,11 +16,17 @@ class CanBus(Protocol):
 
     def fileno(self) -> int: ...
 
+    def recv(self, timeout: float | None = None) -> Any:
+        """The next received ``can.Message``, or None once ``timeout`` passes."""
+        ...
+
     def shutdown(self) -> None: ...
 
 
 class Notifier(Protocol):
     """python-can ``Notifier``: dispatches received frames to canopen's listener."""
+
+    listeners: list[Callable[[Any], Any]]
 
     def stop(self, timeout: float = 5.0) -> None: ...
 

@@ -13,7 +13,7 @@ from collections.abc import Sequence
 from canopen.sdo import SdoAbortedError, SdoCommunicationError
 
 from drivers.base import ControlConfig, DriverInitError
-from drivers.canopen402._sdk import Node402, PdoMap, PdoMaps
+from drivers.canopen402._sdk import Network, Node402, PdoMap, PdoMaps
 from drivers.canopen402.health import HealthMonitor
 from drivers.canopen402.settings import CiA402Settings
 from drivers.canopen402.tables import (
@@ -43,21 +43,23 @@ FAULT_RESET_TIMEOUT_S = 0.5
 
 def probe(node: Node402, settings: CiA402Settings) -> None:
     """Check the node answers SDO and is a CiA 402 drive."""
+    who = settings.node_label(node.id)
+    key = "gripper_node" if node.id == settings.gripper_node else "node_ids"
     try:
         device_type = node.sdo[Index.DEVICE_TYPE].raw
     except SdoCommunicationError as error:
         raise DriverInitError(
-            settings.name, f"node {node.id} does not answer on {settings.describe_bus()} "
-            f"(no SDO reply within {settings.sdo_timeout_s} s): check the node id, that the drive "
-            "is powered, the wiring and termination, and the bitrate",
+            settings.name, f"{who} does not answer on {settings.describe_bus()} (no SDO reply "
+            f"within {settings.sdo_timeout_s} s): check {key}, that the drive is powered, the "
+            "wiring and termination, and the bitrate",
         ) from error
     except SdoAbortedError as error:
-        raise DriverInitError(settings.name, f"node {node.id} refused to report its device "
-                              f"type (0x1000): {error}") from error
+        raise DriverInitError(settings.name, f"{who} refused to report its device type "
+                              f"(0x1000): {error}") from error
     if device_type & 0xFFFF != DEVICE_PROFILE_402:
         raise DriverInitError(
-            settings.name, f"node {node.id} is not a CiA 402 drive: device type 0x{device_type:08X}"
-            f" (profile {device_type & 0xFFFF}); check node_ids",
+            settings.name, f"{who} is not a CiA 402 drive: device type 0x{device_type:08X}"
+            f" (profile {device_type & 0xFFFF}); check {key}",
         )
 
 
@@ -73,8 +75,9 @@ def start_heartbeats(nodes: Sequence[Node402], settings: CiA402Settings,
     for node in nodes:
         if not health.wait_heartbeat(node.id, since, settings.boot_timeout_s):
             raise DriverInitError(
-                settings.name, f"node {node.id} answers SDO but sent no heartbeat within "
-                f"{settings.boot_timeout_s} s of 0x1017 := {settings.heartbeat_period_ms} ms",
+                settings.name, f"{settings.node_label(node.id)} answers SDO but sent no "
+                f"heartbeat within {settings.boot_timeout_s} s of 0x1017 := "
+                f"{settings.heartbeat_period_ms} ms",
             )
 
 
@@ -88,16 +91,16 @@ def clear_fault(node: Node402, settings: CiA402Settings, health: HealthMonitor) 
     detail = _fault_detail(node)
     if not settings.reset_faults_on_connect:
         raise DriverInitError(
-            settings.name, f"node {node.id} is in FAULT at start ({detail}); remove the cause, "
-            "then reset it on the drive or set reset_faults_on_connect = true",
+            settings.name, f"{settings.node_label(node.id)} is in FAULT at start ({detail}); "
+            "remove the cause, then reset it on the drive or set reset_faults_on_connect = true",
         )
     node.sdo[Index.CONTROLWORD].raw = Command.DISABLE_VOLTAGE
     node.sdo[Index.CONTROLWORD].raw = Command.FAULT_RESET  # the reset acts on the rising edge
     deadline = time.monotonic() + FAULT_RESET_TIMEOUT_S
     while decode_state(node.sdo[Index.STATUSWORD].raw) is DriveState.FAULT:
         if time.monotonic() > deadline:
-            raise DriverInitError(settings.name, f"node {node.id} stays in FAULT after a fault "
-                                  f"reset ({detail}): the cause is still present")
+            raise DriverInitError(settings.name, f"{settings.node_label(node.id)} stays in FAULT "
+                                  f"after a fault reset ({detail}): the cause is still present")
         time.sleep(0.01)
     health.clear_emcy(node.id)
 
@@ -116,17 +119,27 @@ def write_parameters(node: Node402, scale: JointScale, control: ControlConfig,
     Returns:
         The motor rated torque (0x6076, mN·m), the unit of the torque the drive reports.
     """
+    write_cycle(node, control)
+    write_limits(node, scale.to_counts(control.q_lower[joint]),
+                 scale.to_counts(control.q_upper[joint]))
+    return int(node.sdo[Index.RATED_TORQUE].raw)
+
+
+def write_cycle(node: Node402, control: ControlConfig) -> None:
+    """What every drive on the bus needs alike: cycle time, interpolation, quick-stop option."""
     period_us = control.period_ns // 1000
     node.sdo[Index.COMM_CYCLE_PERIOD].raw = period_us
     value, exponent = interpolation_period(period_us)
     node.sdo[Index.INTERPOLATION_PERIOD][1].raw = value
     node.sdo[Index.INTERPOLATION_PERIOD][2].raw = exponent
     node.sdo[Index.QUICK_STOP_OPTION].raw = QUICK_STOP_HOLD
-    low, high = sorted((scale.to_counts(control.q_lower[joint]),
-                        scale.to_counts(control.q_upper[joint])))
+
+
+def write_limits(node: Node402, a: int, b: int) -> None:
+    """0x607D in counts, lower first whatever the sign convention of the axis."""
+    low, high = sorted((a, b))
     node.sdo[Index.SOFTWARE_LIMITS][1].raw = low
     node.sdo[Index.SOFTWARE_LIMITS][2].raw = high
-    return int(node.sdo[Index.RATED_TORQUE].raw)
 
 
 EMULATED_INTERFACES = frozenset({"virtual", "udp_multicast"})
@@ -163,10 +176,11 @@ def check_bus_load(settings: CiA402Settings, period_s: float) -> None:
     """Refuse a control rate a physical CAN bus cannot carry with this PDO layout."""
     if settings.interface in EMULATED_INTERFACES:
         return
-    load = bus_load(len(settings.node_ids), period_s, settings.bitrate)
+    drives = len(settings.drive_ids)  # the gripper's PDOs share the bus with the joints'
+    load = bus_load(drives, period_s, settings.bitrate)
     if load > 1.0:
         raise DriverInitError(
-            settings.name, f"{len(settings.node_ids)} drives at {1 / period_s:.0f} Hz need "
+            settings.name, f"{drives} drives at {1 / period_s:.0f} Hz need "
             f"{100 * load:.0f}% of {settings.bitrate} bit/s (worst case): lower the control "
             "rate or split the drives over more CAN buses",
         )
@@ -199,6 +213,16 @@ def map_pdos(node: Node402) -> None:
     node.setup_402_state_machine(read_pdos=False)
 
 
+def stop_echo(network: Network, node: Node402) -> None:
+    """Unsubscribe our own RPDOs: a bus that echoes frames (udp_multicast) would otherwise
+    make canopen treat them as received and overwrite the setpoints we are sending."""
+    for number in list(node.rpdo):
+        pdo = node.rpdo[number]
+        subscribed = network.subscribers.get(pdo.cob_id or -1, [])
+        if pdo.enabled and pdo.on_message in subscribed:
+            network.unsubscribe(pdo.cob_id or -1, pdo.on_message)
+
+
 def _apply_layout(maps: PdoMaps, layout: tuple[tuple[Index, ...], ...]) -> None:
     for number in list(maps):
         pdo: PdoMap = maps[number]
@@ -221,8 +245,8 @@ def enter_operational(nodes: Sequence[Node402], settings: CiA402Settings,
     timeout_s = settings.boot_timeout_s + 3 * settings.heartbeat_period_ms / 1000.0
     for node in nodes:
         if not health.wait_heartbeat(node.id, since, timeout_s, NmtState.OPERATIONAL):
-            raise DriverInitError(settings.name, f"node {node.id} did not report OPERATIONAL "
-                                  f"within {timeout_s:.2f} s of the NMT start command")
+            raise DriverInitError(settings.name, f"{settings.node_label(node.id)} did not report "
+                                  f"OPERATIONAL within {timeout_s:.2f} s of the NMT start command")
 
 
 def select_csp(node: Node402, settings: CiA402Settings) -> None:
@@ -235,8 +259,8 @@ def select_csp(node: Node402, settings: CiA402Settings) -> None:
     while (shown := node.sdo[Index.MODES_DISPLAY].raw) != Mode.CYCLIC_SYNCHRONOUS_POSITION:
         if time.monotonic() > deadline:
             raise DriverInitError(
-                settings.name, f"node {node.id} did not confirm {CSP_MODE_NAME} mode within "
-                f"{settings.state_timeout_s} s: 0x6061 reads {shown} (0x6502 supported modes "
-                f"0x{node.sdo[Index.SUPPORTED_MODES].raw:08X})",
+                settings.name, f"{settings.node_label(node.id)} did not confirm {CSP_MODE_NAME} "
+                f"mode within {settings.state_timeout_s} s: 0x6061 reads {shown} (0x6502 "
+                f"supported modes 0x{node.sdo[Index.SUPPORTED_MODES].raw:08X})",
             )
         time.sleep(0.01)

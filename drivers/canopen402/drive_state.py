@@ -73,7 +73,7 @@ def _await_state(node: Node402, expected: DriveState, deadline: float,
         if remaining <= 0:
             state = current_state(node)
             raise DeviceFault(
-                settings.name, f"node {node.id} did not reach {expected} within "
+                settings.name, f"{settings.node_label(node.id)} did not reach {expected} within "
                 f"{settings.state_timeout_s} s: it reports {state} "
                 f"(statusword 0x{node.statusword:04X})",
                 ReasonCode.CONTROLLER_FAULT,
@@ -91,10 +91,34 @@ def _refuse_fault(node: Node402, state: DriveState, target: DriveState,
                   settings: CiA402Settings) -> None:
     if state in FAULTY:
         raise DeviceFault(
-            settings.name, f"node {node.id} is in {state} (statusword 0x{node.statusword:04X}); "
-            f"not moving it to {target}: a fault is reset only at connect",
+            settings.name, f"{settings.node_label(node.id)} is in {state} (statusword "
+            f"0x{node.statusword:04X}); not moving it to {target}: a fault is reset only at "
+            "connect",
             ReasonCode.CONTROLLER_FAULT,
         )
     if state is DriveState.UNKNOWN:
-        raise DeviceFault(settings.name, f"node {node.id} reports an undefined statusword "
-                          f"0x{node.statusword:04X}", ReasonCode.CONTROLLER_FAULT)
+        raise DeviceFault(settings.name, f"{settings.node_label(node.id)} reports an undefined "
+                          f"statusword 0x{node.statusword:04X}", ReasonCode.CONTROLLER_FAULT)
+
+
+def check_running(node: Node402, settings: CiA402Settings, active: bool,
+                  stop_requested: bool) -> None:
+    """The check every read and write makes of each drive's last statusword.
+
+    Raises:
+        DeviceFault: the drive is in FAULT, or left OPERATION ENABLED while the driver is
+            active (QUICK STOP ACTIVE is expected only after our own quick stop).
+    """
+    state = current_state(node)
+    who = settings.node_label(node.id)
+    if state in FAULTY:
+        raise DeviceFault(settings.name, f"{who} reports {state} (statusword "
+                          f"0x{node.statusword:04X})", ReasonCode.CONTROLLER_FAULT)
+    allowed = {DriveState.OPERATION_ENABLED}
+    if stop_requested:
+        allowed.add(DriveState.QUICK_STOP_ACTIVE)
+    if active and state not in allowed:
+        cause = " (a quick stop the drive made itself)" if (
+            state is DriveState.QUICK_STOP_ACTIVE) else ""
+        raise DeviceFault(settings.name, f"{who} left OPERATION ENABLED: it reports "
+                          f"{state}{cause}", ReasonCode.CONTROLLER_FAULT)

@@ -1,10 +1,13 @@
-"""CiA 402 servo drives on CANopen (canopen ``BaseNode402``, one node per joint), in CSP mode.
+"""CiA 402 servo drives on CANopen (canopen ``BaseNode402``, one node per joint), in CSP mode,
+and optionally one more such drive for the gripper (:mod:`drivers.canopen402.gripper`).
 
 connect: open the bus, NMT pre-operational, check every node answers and is a 402 drive, start
 its heartbeat, refuse (or, if allowed, reset) a drive in FAULT. configure: cycle time, limits,
 quick-stop option and PDO mapping over SDO, NMT operational, the bus cycle (RPDOs + SYNC) at the
 control period, CSP confirmed. activate: target := actual, then up to OPERATION ENABLED.
 write: targets into the RPDOs, then RPDOs + SYNC; read: the latest TPDOs, converted to SI units.
+Every step that concerns "every drive" includes the gripper drive, so its faults surface exactly
+as a joint's do; only the units and the HOLD/STOP rules differ.
 
 Blocking canopen calls (SDO, waits for a TPDO) run on the device thread only: on the loop thread
 they would wait for a frame that the loop itself has to dispatch.
@@ -28,7 +31,6 @@ from drivers.base import (
     Command,
     CommandKind,
     ControlConfig,
-    DeviceFault,
     DriverError,
     DriverInitError,
     DriverIOError,
@@ -36,10 +38,11 @@ from drivers.base import (
     NotConnected,
     StateSample,
 )
-from drivers.canopen402 import bringup
+from drivers.canopen402 import bringup, gripper
 from drivers.canopen402._sdk import Node402, PdoVariable
 from drivers.canopen402.cycle import BusCycle
-from drivers.canopen402.drive_state import FAULTY, current_state, walk_to
+from drivers.canopen402.drive_state import FAULTY, check_running, current_state, walk_to
+from drivers.canopen402.gripper import Gripper
 from drivers.canopen402.health import HealthMonitor
 from drivers.canopen402.link import Link, build_link
 from drivers.canopen402.settings import CiA402Settings
@@ -64,6 +67,7 @@ class CiA402Driver:
         self._control: ControlConfig | None = None
         self._rated_torque: tuple[int, ...] = ()
         self._targets: tuple[PdoVariable, ...] = ()
+        self._gripper: Gripper | None = None
         self._active = False
         self._powered = False
         """Some drive may be enabled: set before an enable starts, so a half-done activate
@@ -117,10 +121,10 @@ class CiA402Driver:
             bringup.clear_fault(node, self.settings, self._health)
 
     async def configure(self, control: ControlConfig) -> None:
-        nodes = self._nodes()
-        if control.dof != len(nodes):
+        joints = self._require_link().joints
+        if control.dof != len(joints):
             raise DriverInitError(self.name, f"the control loop has {control.dof} joints but "
-                                  f"node_ids lists {len(nodes)} drives")
+                                  f"node_ids lists {len(joints)} drives")
         bringup.check_bus_load(self.settings, control.period_ns * 1e-9)
         self._control = control
         self._rated_torque = await self._blocking("PDO and parameter setup",
@@ -133,30 +137,27 @@ class CiA402Driver:
         self._check()
 
     def _configure_drives(self, control: ControlConfig) -> tuple[int, ...]:
+        link = self._require_link()
         rated = []
-        for joint, node in enumerate(self._nodes()):
+        for joint, node in enumerate(link.joints):
             try:
                 rated.append(bringup.write_parameters(node, self._scales[joint], control, joint))
             except ValueError as error:  # a limit that does not fit INTEGER32 counts
                 raise DriverInitError(self.name, f"joint {joint} (node {node.id}): {error}; "
                                       "check counts_per_rev and the joint limits") from error
+        if link.gripper is not None:
+            gripper.configure(link.gripper, self.settings.gripper_scale(), control)
+        for node in link.nodes:
             bringup.map_pdos(node)
-            self._stop_echo(node)
+            bringup.stop_echo(link.network, node)
         return tuple(rated)
 
-    def _stop_echo(self, node: Node402) -> None:
-        """Unsubscribe our own RPDOs: a bus that echoes frames (udp_multicast) would otherwise
-        make canopen treat them as received and overwrite the setpoints we are sending."""
-        network = self._require_link().network
-        for number in list(node.rpdo):
-            pdo = node.rpdo[number]
-            subscribed = network.subscribers.get(pdo.cob_id or -1, [])
-            if pdo.enabled and pdo.on_message in subscribed:
-                network.unsubscribe(pdo.cob_id or -1, pdo.on_message)
-
     def _start_cycle(self, control: ControlConfig) -> None:
-        nodes = self._nodes()
-        self._targets = tuple(node.rpdo[1][Index.TARGET_POSITION] for node in nodes)
+        link = self._require_link()
+        nodes = link.nodes
+        self._targets = tuple(node.rpdo[1][Index.TARGET_POSITION] for node in link.joints)
+        if link.gripper is not None:
+            self._gripper = Gripper(link.gripper, self.settings.gripper_scale())
         tpdos = [(node.id, node.tpdo[n]) for node in nodes for n in list(node.tpdo)]
         tpdos = [(node_id, pdo) for node_id, pdo in tpdos if pdo.enabled and pdo.cob_id]
         self._cycle = BusCycle(
@@ -181,6 +182,8 @@ class CiA402Driver:
     async def activate(self) -> None:
         self._check()
         self._hold_targets()  # a CSP drive follows its target at once: start from where it is
+        if self._gripper is not None:
+            self._gripper.start_here()
         self._stop_requested = False
         self._powered = True
         await self._blocking("enable", self._for_each, walk_to, DriveState.OPERATION_ENABLED,
@@ -210,6 +213,7 @@ class CiA402Driver:
     async def hold(self) -> Applied:
         self._check()
         q = self._hold_targets()
+        self._keep_gripper()
         if self._active and self._stop_requested:  # leave QUICK STOP ACTIVE (transition 16)
             await self._blocking("re-enable after quick stop", self._for_each, walk_to,
                                  DriveState.OPERATION_ENABLED, self.settings)
@@ -221,6 +225,7 @@ class CiA402Driver:
     async def deactivate(self) -> None:
         self._active = False
         self._hold_targets()
+        self._keep_gripper()
         await self._blocking("disable", self._for_each, self._disable_unless_faulted)
         self._powered = self._stop_requested = False
         self._check()
@@ -252,32 +257,41 @@ class CiA402Driver:
             return self._refuse(command.kind, ReasonCode.CONTROLLER_REJECT)
         if len(command.q) != control.dof:
             return self._refuse(command.kind, ReasonCode.MALFORMED)
-        if not all(math.isfinite(v) for v in command.q):
+        if not (all(math.isfinite(v) for v in command.q) and gripper.valid_opening(
+                command.gripper)):
             return self._refuse(command.kind, ReasonCode.NONFINITE)
         counts = [scale.to_counts(min(max(q, lo), hi)) for scale, q, lo, hi in zip(
             self._scales, command.q, control.q_lower, control.q_upper, strict=True)]
         for target, value in zip(self._targets, counts, strict=True):
             target.raw = value
+        if self._gripper is not None:
+            self._gripper.command(command.gripper)
         self._tick()
         applied = tuple(scale.to_rad(c) for scale, c in zip(self._scales, counts, strict=True))
         return Applied(kind=CommandKind.POSITION, t_mono_ns=time.monotonic_ns(), q=applied)
 
     def _quick_stop(self) -> Applied:
-        for node in self._nodes():
+        for node in self._require_link().joints:
             node.controlword = Controlword.QUICK_STOP
+        self._keep_gripper()  # stays enabled, see Gripper.keep
         self._stop_requested = True
         self._tick()
         return Applied(kind=CommandKind.STOP, t_mono_ns=time.monotonic_ns(),
                        q=self._sample().q)
 
     def _hold_targets(self) -> tuple[float, ...]:
-        """Set every target to the drive's actual position; returns it in radians."""
+        """Set every joint's target to its actual position; returns it in radians."""
         q = []
-        for node, scale, target in zip(self._nodes(), self._scales, self._targets, strict=True):
+        for node, scale, target in zip(self._require_link().joints, self._scales, self._targets,
+                                       strict=True):
             counts = node.tpdo_values[Index.POSITION_ACTUAL]
             target.raw = counts
             q.append(scale.to_rad(counts))
         return tuple(q)
+
+    def _keep_gripper(self) -> None:
+        if self._gripper is not None:
+            self._gripper.keep()
 
     def _tick(self) -> None:
         try:
@@ -288,15 +302,16 @@ class CiA402Driver:
 
     def _sample(self) -> StateSample:
         q, qd, effort = [], [], []
-        for node, scale, rated in zip(self._nodes(), self._scales, self._rated_torque,
-                                      strict=True):
+        for node, scale, rated in zip(self._require_link().joints, self._scales,
+                                      self._rated_torque, strict=True):
             values = node.tpdo_values
             q.append(scale.to_rad(values[Index.POSITION_ACTUAL]))
             qd.append(scale.velocity_to_rad(values[Index.VELOCITY_ACTUAL]))
             effort.append(scale.torque_to_nm(values[Index.TORQUE_ACTUAL], rated))
         self._seq += 1
+        opening = self._gripper.opening() if self._gripper is not None else None
         return StateSample(seq=self._seq, t_mono_ns=time.monotonic_ns(), source=self.name,
-                           q=tuple(q), qd=tuple(qd), effort=tuple(effort))
+                           q=tuple(q), qd=tuple(qd), effort=tuple(effort), gripper=opening)
 
     def _refuse(self, kind: CommandKind, reason: ReasonCode) -> Applied:
         return Applied(kind=kind, t_mono_ns=time.monotonic_ns(), accepted=False, reason=reason)
@@ -309,28 +324,20 @@ class CiA402Driver:
 
     def _check(self) -> None:
         """Raise what the drives reported since the last call (EMCY, silence, state)."""
-        self._require_link()
-        self._health.check(expect_pdos=self._cycle is not None)
+        link = self._require_link()
+        try:
+            self._health.check(expect_pdos=self._cycle is not None)
+        except (DriverIOError, DriverTimeout):
+            if not link.catch_up():  # silence is only silence once what arrived has been read
+                raise
+            self._health.check(expect_pdos=self._cycle is not None)
         if self._cycle is None:
             return
         if self._cycle.error is not None:
             raise DriverIOError(self.name, f"the bus cycle could not send on "
                                 f"{self.settings.describe_bus()}: {self._cycle.error}")
         for node in self._nodes():
-            self._check_state(node, current_state(node))
-
-    def _check_state(self, node: Node402, state: DriveState) -> None:
-        if state in FAULTY:
-            raise DeviceFault(self.name, f"node {node.id} reports {state} (statusword "
-                              f"0x{node.statusword:04X})", ReasonCode.CONTROLLER_FAULT)
-        allowed = {DriveState.OPERATION_ENABLED}
-        if self._stop_requested:
-            allowed.add(DriveState.QUICK_STOP_ACTIVE)
-        if self._active and state not in allowed:
-            cause = " (a quick stop the drive made itself)" if (
-                state is DriveState.QUICK_STOP_ACTIVE) else ""
-            raise DeviceFault(self.name, f"node {node.id} left OPERATION ENABLED: it reports "
-                              f"{state}{cause}", ReasonCode.CONTROLLER_FAULT)
+            check_running(node, self.settings, self._active, self._stop_requested)
 
     # -- plumbing ------------------------------------------------------------------------------
 
@@ -360,26 +367,12 @@ class CiA402Driver:
         if not (self._powered and self._cycle is not None and self._link is not None):
             return
         self._active = self._powered = False
-        try:
-            for node in self._link.nodes:
-                node.controlword = Controlword.QUICK_STOP
-            self._cycle.tick()
-        except (can.CanError, RuntimeError):
-            pass  # the link is already gone: nothing more reaches the drives from here
+        self._link.quick_stop(self._cycle.tick)  # the gripper too: closing ends every motion
 
     async def _close_link(self) -> None:
         link, self._link = self._link, None
-        if link is None:
-            return
-        try:
-            for node in link.nodes:
-                node.nmt.state = "PRE-OPERATIONAL"
-        except (can.CanError, RuntimeError):
-            pass  # best effort: closing goes on
-        if link.loop_bound:
-            link.close()  # its reader is an fd on this loop: remove it here
-        else:
-            await asyncio.to_thread(link.close)
+        if link is not None:
+            await link.aclose()
 
     def _nodes(self) -> tuple[Node402, ...]:
         return self._require_link().nodes

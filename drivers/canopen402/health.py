@@ -43,7 +43,7 @@ class NodeRecord:
 class HealthMonitor:
     def __init__(self, settings: CiA402Settings) -> None:
         self._settings = settings
-        self._records = {node_id: NodeRecord() for node_id in settings.node_ids}
+        self._records = {node_id: NodeRecord() for node_id in settings.drive_ids}
 
     def attach(self, node: Node402) -> None:
         node.nmt.add_heartbeat_callback(functools.partial(self._on_heartbeat, node.id))
@@ -114,8 +114,11 @@ class HealthMonitor:
             if expect_pdos:
                 self._check_tpdo(node_id, record, now)
 
+    def _label(self, node_id: int) -> str:
+        return self._settings.node_label(node_id)
+
     def _raise_emcy(self, node_id: int, emcy: EmcyRecord) -> None:
-        raise DeviceFault(self._settings.name, f"node {node_id} reports {emcy.describe()}",
+        raise DeviceFault(self._settings.name, f"{self._label(node_id)} reports {emcy.describe()}",
                           ReasonCode.CONTROLLER_FAULT)
 
     def _check_heartbeat(self, node_id: int, record: NodeRecord, now: float,
@@ -125,14 +128,14 @@ class HealthMonitor:
             silent = "never" if record.heartbeat_at is None else (
                 f"not for {1000 * (now - record.heartbeat_at):.0f} ms")
             raise DriverIOError(
-                self._settings.name, f"node {node_id} heartbeat lost: heard {silent} "
+                self._settings.name, f"{self._label(node_id)} heartbeat lost: heard {silent} "
                 f"(consumer timeout {self._settings.heartbeat_timeout_ms} ms) on "
                 f"{self._settings.describe_bus()}",
             )
         if expect_pdos and record.nmt_state != NmtState.OPERATIONAL:
             raise DriverIOError(
-                self._settings.name, f"node {node_id} left OPERATIONAL: its heartbeat reports "
-                f"NMT state {record.nmt_state}, so it no longer exchanges process data",
+                self._settings.name, f"{self._label(node_id)} left OPERATIONAL: its heartbeat "
+                f"reports NMT state {record.nmt_state}, so it no longer exchanges process data",
             )
 
     def _check_tpdo(self, node_id: int, record: NodeRecord, now: float) -> None:
@@ -144,10 +147,11 @@ class HealthMonitor:
         if heartbeat_age > 2 * self._settings.heartbeat_period_ms / 1000.0:
             # Both streams stopped: a dead drive or cable, which is the link, not a late reply.
             raise DriverIOError(
-                self._settings.name, f"node {node_id} went silent: no TPDO for {silent} and no "
-                f"heartbeat for {1000 * heartbeat_age:.0f} ms on {self._settings.describe_bus()}",
+                self._settings.name, f"{self._label(node_id)} went silent: no TPDO for {silent} "
+                f"and no heartbeat for {1000 * heartbeat_age:.0f} ms on "
+                f"{self._settings.describe_bus()}",
             )
         raise DriverTimeout(
-            self._settings.name, f"node {node_id} sent no TPDO for {silent} (timeout "
+            self._settings.name, f"{self._label(node_id)} sent no TPDO for {silent} (timeout "
             f"{self._settings.tpdo_timeout_ms} ms) although its heartbeat is alive",
         )

@@ -1,4 +1,5 @@
-"""Open and close the CAN bus, the canopen network and one ``BaseNode402`` per joint.
+"""Open and close the CAN bus, the canopen network and one ``BaseNode402`` per drive (every
+joint, then the gripper if the settings name one).
 
 The one place that constructs vendor objects. Received frames reach canopen through a python-can
 ``Notifier``: bound to the event loop when the bus has a file descriptor (``udp_multicast``,
@@ -15,7 +16,7 @@ import functools
 import logging
 import os
 import socket
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import cast
@@ -27,7 +28,7 @@ from canopen.objectdictionary import ODVariable
 from drivers.base import DriverInitError
 from drivers.canopen402._sdk import CanBus, Network, Node402, Notifier
 from drivers.canopen402.settings import CiA402Settings
-from drivers.canopen402.tables import DEFAULT_EDS
+from drivers.canopen402.tables import DEFAULT_EDS, Command
 
 log = logging.getLogger(__name__)
 
@@ -35,6 +36,8 @@ UDP_RECEIVE_BUFFER = 4 * 1024 * 1024
 """Requested SO_RCVBUF; Linux caps it at net.core.rmem_max (4 MB on this machine kind)."""
 NOTIFIER_POLL_S = 0.05
 """Reader-thread receive timeout: bounds how long closing waits for the thread to notice."""
+CATCH_UP_LIMIT = 20_000
+"""Most frames one catch-up hands over: some seconds of a busy bus, so it always ends."""
 
 
 @dataclass(slots=True)
@@ -43,9 +46,18 @@ class Link:
     bus: CanBus
     network: Network
     nodes: tuple[Node402, ...]
+    """Every drive: the joints in joint order, then the gripper (``settings.drive_ids``)."""
     notifier: Notifier | None = None
     loop_bound: bool = False
     """True when the notifier runs on the event loop (it must then be stopped there too)."""
+
+    @property
+    def joints(self) -> tuple[Node402, ...]:
+        return self.nodes[: len(self.settings.node_ids)]
+
+    @property
+    def gripper(self) -> Node402 | None:
+        return self.nodes[-1] if self.settings.gripper_node is not None else None
 
     def start_notifier(self, loop: asyncio.AbstractEventLoop) -> None:
         """Start dispatching received frames. Call on the loop thread (``add_reader``)."""
@@ -59,6 +71,44 @@ class Link:
             loop=loop if self.loop_bound else None,
         )
         self.network.notifier = self.notifier
+
+    def catch_up(self) -> int:
+        """Hand every frame already received to the listeners now; returns how many there were.
+
+        A notifier on the event loop dispatches one frame per loop iteration, so after a call
+        that held the loop up (an application's blocking start-up step, a long GC pass) frames
+        that arrived in time can still be waiting, and a drive that kept talking would look
+        silent. Call on the loop thread. A reader thread keeps up by itself: nothing to do.
+        """
+        if not self.loop_bound or self.notifier is None:
+            return 0
+        count = 0
+        while count < CATCH_UP_LIMIT and (message := self.bus.recv(0)) is not None:
+            for listener in self.notifier.listeners:
+                listener(message)
+            count += 1
+        return count
+
+    def quick_stop(self, send: Callable[[], object]) -> None:
+        """Quick-stop every drive and ``send`` one last bus cycle; best effort (on the way out)."""
+        try:
+            for node in self.nodes:
+                node.controlword = Command.QUICK_STOP
+            send()
+        except (can.CanError, RuntimeError):
+            pass  # the link is already gone: nothing more reaches the drives from here
+
+    async def aclose(self) -> None:
+        """NMT pre-operational for every drive (best effort), then :meth:`close`."""
+        try:
+            for node in self.nodes:
+                node.nmt.state = "PRE-OPERATIONAL"
+        except (can.CanError, RuntimeError):
+            pass  # best effort: closing goes on
+        if self.loop_bound:
+            self.close()  # its reader is an fd on this loop: remove it here
+        else:
+            await asyncio.to_thread(self.close)
 
     def close(self) -> None:
         """Stop the notifier and release the bus; never raises (it runs on the way out)."""
@@ -85,7 +135,8 @@ def build_link(settings: CiA402Settings) -> Link:
     try:
         widen_receive_buffer(cast(CanBus, bus))
         network = cast(Network, canopen.Network(bus))
-        nodes = tuple(_add_node(network, node_id, eds, settings) for node_id in settings.node_ids)
+        nodes = tuple(_add_node(network, node_id, eds, settings)
+                      for node_id in settings.drive_ids)
     except Exception as error:
         bus.shutdown()
         raise DriverInitError(settings.name, f"cannot load the object dictionary {eds}: "

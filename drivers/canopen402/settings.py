@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from drivers.canopen402.units import JointScale
+from drivers.canopen402.units import GRIPPER_COUNTS_PER_M, GripperScale, JointScale
 from drivers.settings import settings_from_mapping
 
 
@@ -18,6 +19,8 @@ class CiA402Settings:
     ``virtual`` in-process, ``udp_multicast`` with a multicast group across processes).
     ``counts_per_rev`` has no default on purpose: a guessed scale moves the wrong distance.
     Empty ``direction``/``offset_counts``/``gear_ratio`` mean +1, 0 and 1.0 for every joint.
+    ``gripper_node``, when set, is one more CiA 402 drive on the same bus whose position is the
+    gripper opening (see :mod:`drivers.canopen402.gripper`).
     """
 
     interface: str
@@ -49,9 +52,17 @@ class CiA402Settings:
     """Deadline of each blocking step (bring-up, state changes) on the device thread."""
     reset_faults_on_connect: bool = False
     """Clear a drive's latched FAULT at connect; otherwise connect refuses a faulted drive."""
+    gripper_node: int | None = None
+    """Node id of the gripper drive; None: this arm has no gripper on the bus."""
+    gripper_counts_per_m: float = GRIPPER_COUNTS_PER_M
+    """Gripper position counts per metre of opening. The default, one count per micrometre, is
+    far finer than grasping needs (the cell's 20 mm peg has 0.75 mm of clearance per side in its
+    hole) and the whole 0.085 m stroke is 85 000 counts, far inside INTEGER32; it is also the
+    emulator's default. A real gripper drive: set its own scale here."""
 
     def __post_init__(self) -> None:
         _check_node_ids(self.node_ids)
+        self._check_gripper()
         joints = len(self.node_ids)
         for key in ("counts_per_rev", "direction", "offset_counts", "gear_ratio"):
             values = getattr(self, key)
@@ -69,6 +80,30 @@ class CiA402Settings:
         if min(self.tpdo_timeout_ms, self.sdo_timeout_s, self.boot_timeout_s,
                self.state_timeout_s, self.call_timeout_s) <= 0:
             raise ValueError("timeouts must be positive")
+
+    def _check_gripper(self) -> None:
+        if self.gripper_node is not None:
+            if not 1 <= self.gripper_node <= 127:
+                raise ValueError(f"gripper_node must be within 1..127, got {self.gripper_node}")
+            if self.gripper_node in self.node_ids:
+                raise ValueError(f"gripper_node {self.gripper_node} is also in node_ids: the "
+                                 "gripper needs a drive of its own")
+        if not (math.isfinite(self.gripper_counts_per_m) and self.gripper_counts_per_m > 0):
+            raise ValueError(f"gripper_counts_per_m must be a positive number, got "
+                             f"{self.gripper_counts_per_m}")
+
+    @property
+    def drive_ids(self) -> tuple[int, ...]:
+        """Every drive on the bus: the joints in joint order, then the gripper if there is one."""
+        gripper = () if self.gripper_node is None else (self.gripper_node,)
+        return (*self.node_ids, *gripper)
+
+    def node_label(self, node_id: int) -> str:
+        """How errors name a drive: the gripper says so, since its id alone means little."""
+        return f"node {node_id} (gripper)" if node_id == self.gripper_node else f"node {node_id}"
+
+    def gripper_scale(self) -> GripperScale:
+        return GripperScale(self.gripper_counts_per_m)
 
     @classmethod
     def from_mapping(cls, table: Mapping[str, Any], where: str = "canopen402") -> CiA402Settings:

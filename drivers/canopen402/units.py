@@ -1,4 +1,4 @@
-"""Encoder counts ↔ joint radians, per joint, from the drive settings."""
+"""Encoder counts ↔ joint radians, per joint, and ↔ gripper opening in metres."""
 
 from __future__ import annotations
 
@@ -43,3 +43,28 @@ class JointScale:
     def torque_to_nm(self, per_mille: int, rated_torque_mnm: int) -> float:
         """0x6077 (thousandths of rated motor torque) → joint torque in N·m."""
         return self.direction * per_mille * rated_torque_mnm * 1e-6 * self.gear_ratio
+
+
+GRIPPER_COUNTS_PER_M = 1_000_000.0
+"""One count per micrometre of opening (why: see ``CiA402Settings.gripper_counts_per_m``)."""
+
+
+@dataclass(frozen=True, slots=True)
+class GripperScale:
+    """How the gripper drive's position counts map to the opening between the fingers.
+
+    ``opening = counts / counts_per_m``: zero counts is fully closed, and the count grows as the
+    fingers open (a gripper's own homing defines that zero, so there is no offset to configure).
+    """
+
+    counts_per_m: float
+
+    def to_counts(self, opening_m: float) -> int:
+        counts = round(opening_m * self.counts_per_m)
+        if not INT32_MIN <= counts <= INT32_MAX:
+            raise ValueError(f"{opening_m} m is {counts} counts, outside the drive's INTEGER32 "
+                             "range")
+        return counts
+
+    def to_m(self, counts: int) -> float:
+        return counts / self.counts_per_m

@@ -12,6 +12,11 @@ thread-safe and its calls block (and spin) while they wait for a reply.
 - read: one (fast) sync read of present current, velocity and position; the alert bit in any
   status packet turns into a DeviceFault that names the hardware error bits.
 - write: one sync write of goal positions, clipped to the joint limits and the one-turn range.
+
+With ``gripper_id`` one more servo on the bus is the gripper: bring-up finds and configures it
+with the joints; a POSITION command's ``gripper`` opening (m, clipped to [0, 0.085]) goes out in
+the joints' sync write, and ``None`` leaves it alone; HOLD and STOP hold the joints only (a
+gripper holding a part keeps squeezing); ``read`` reports its opening in ``StateSample.gripper``.
 """
 
 from __future__ import annotations
@@ -37,9 +42,9 @@ from drivers.base import (
 )
 from drivers.device_thread import DeviceThread
 from drivers.dynamixel.bus import DynamixelBus, RawState
-from drivers.dynamixel.settings import DynamixelSettings
+from drivers.dynamixel.settings import GRIPPER_MAX_OPENING_M, DynamixelSettings
 from drivers.dynamixel.tables import POSITION_MODE_TICKS
-from drivers.dynamixel.units import JointCalibration
+from drivers.dynamixel.units import GripperCalibration, JointCalibration
 from drivers.settings import settings_from_mapping
 
 T = TypeVar("T")
@@ -55,6 +60,8 @@ class DynamixelDriver:
             current_unit_a=settings.current_unit_ma / 1000.0,
             torque_per_amp=settings.torque_per_amp_nm,
         )
+        self.gripper = GripperCalibration(settings.gripper_open_ticks,
+                                          settings.gripper_closed_ticks, GRIPPER_MAX_OPENING_M)
         self._tick_lower, self._tick_upper = self.calibration.q_range(*POSITION_MODE_TICKS)
         self._lower, self._upper = self._tick_lower, self._tick_upper
         self._thread: DeviceThread | None = None
@@ -112,6 +119,7 @@ class DynamixelDriver:
             return await self._write_position(command)
         if command.kind in (CommandKind.HOLD, CommandKind.STOP):
             # In position mode "stop" and "hold" are the same: goal := where the servo is now.
+            # Its gripper opening is ignored on purpose: a hold must never open the gripper.
             applied = await self.hold()
             return msgspec.structs.replace(applied, kind=command.kind)
         # The servos run in position mode; velocity streaming would need Operating Mode 1.
@@ -145,14 +153,20 @@ class DynamixelDriver:
     async def _write_position(self, command: Command) -> Applied:
         if len(command.q) != len(self.settings.ids):
             return _refused(command.kind, ReasonCode.MALFORMED)
-        if not all(math.isfinite(v) for v in command.q):
+        if not all(math.isfinite(v) for v in (*command.q, command.gripper or 0.0)):
             return _refused(command.kind, ReasonCode.NONFINITE)
         q = tuple(min(max(v, lo), hi)
                   for v, lo, hi in zip(command.q, self._lower, self._upper, strict=True))
         ticks = self._ticks_in_range(q)
-        await self._run(self._connected_bus().write_goals, ticks)
+        await self._run(self._connected_bus().write_goals, ticks, self._gripper_tick(command))
         # ``q`` is what was sent before rounding to whole ticks (at most half a tick, 0.77 mrad).
         return Applied(kind=command.kind, t_mono_ns=time.monotonic_ns(), q=q)
+
+    def _gripper_tick(self, command: Command) -> int | None:
+        """The gripper's goal tick, or None to leave it (no opening asked, or no gripper)."""
+        if command.gripper is None or self.settings.gripper_id is None:
+            return None
+        return self.gripper.ticks_from_opening(command.gripper)
 
     def _ticks_in_range(self, q: tuple[float, ...]) -> tuple[int, ...]:
         low, high = POSITION_MODE_TICKS
@@ -165,6 +179,7 @@ class DynamixelDriver:
             q=self.calibration.q_from_ticks(raw.position),
             qd=self.calibration.qd_from_units(raw.velocity),
             effort=self.calibration.effort_from_units(raw.current),
+            gripper=None if raw.gripper is None else self.gripper.opening_from_ticks(raw.gripper),
         )
 
     def _connected_bus(self) -> DynamixelBus:

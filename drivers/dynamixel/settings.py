@@ -4,7 +4,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from drivers.dynamixel.tables import POSITION_MODE_TICKS
+
 SIX_SERVO_ARM_IDS = (1, 2, 3, 4, 5, 6)
+GRIPPER_MAX_OPENING_M = 0.085
+"""Opening between the pads (m) at ``gripper_open_ticks``; commands are clipped to [0, this]."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -32,6 +36,16 @@ class DynamixelSettings:
     """mA per Present Current count: 2.69 on XM430/XM540, 1.0 on XL330."""
     torque_per_amp_nm: float = 1.78
     """Torque constant used to report effort (XM430-W350 at 12 V: 4.1 N·m at 2.3 A)."""
+    gripper_id: int | None = None
+    """Servo id of the gripper (not one of ``ids``); None: this bus has no gripper."""
+    gripper_open_ticks: int = 2048
+    """Goal/Present Position at the fully open opening (0.085 m). The defaults assume an XM430
+    gripper assembled open at the shaft's centre tick that closes over a quarter turn (1024
+    ticks, about 0.08 mm of opening per tick); they are not a vendor figure: read both ends off
+    your gripper with Dynamixel Wizard and set them."""
+    gripper_closed_ticks: int = 3072
+    """Goal/Present Position at opening 0.0 m (pads touching); may be below the open ticks for a
+    servo that closes the other way round. Openings map linearly between the two."""
 
     def __post_init__(self) -> None:
         if not self.port:
@@ -51,3 +65,25 @@ class DynamixelSettings:
                     "torque_per_amp_nm"):
             if not getattr(self, key) > 0:
                 raise ValueError(f"{key}: must be > 0, got {getattr(self, key)}")
+        self._check_gripper()
+
+    @property
+    def all_ids(self) -> tuple[int, ...]:
+        """Every servo on the bus: the joints in joint order, then the gripper if there is one."""
+        return self.ids if self.gripper_id is None else (*self.ids, self.gripper_id)
+
+    def _check_gripper(self) -> None:
+        if self.gripper_id is not None:
+            if not 0 <= self.gripper_id <= 252:
+                raise ValueError(f"gripper_id: must be in 0..252, got {self.gripper_id}")
+            if self.gripper_id in self.ids:
+                raise ValueError(f"gripper_id: {self.gripper_id} is also a joint in `ids` "
+                                 f"{list(self.ids)}; the gripper needs its own servo id")
+        low, high = POSITION_MODE_TICKS
+        for key in ("gripper_open_ticks", "gripper_closed_ticks"):
+            if not low <= getattr(self, key) <= high:
+                raise ValueError(f"{key}: must be a position-mode tick in {low}..{high}, "
+                                 f"got {getattr(self, key)}")
+        if self.gripper_open_ticks == self.gripper_closed_ticks:
+            raise ValueError(f"gripper_closed_ticks: equals gripper_open_ticks "
+                             f"({self.gripper_open_ticks}); open and closed need distinct ticks")

@@ -79,3 +79,27 @@ class JointCalibration:
         lower = tuple(min(a, b) for a, b in zip(*ends, strict=True))
         upper = tuple(max(a, b) for a, b in zip(*ends, strict=True))
         return lower, upper
+
+
+@dataclass(frozen=True, slots=True)
+class GripperCalibration:
+    """Gripper opening (m) ↔ servo ticks: linear between the closed and the open end.
+
+    Unlike a joint, a gripper is calibrated by its two end stops, not by an offset: a rack or a
+    linkage turns the shaft angle into an opening, and both ends are where a person measures.
+    """
+
+    open_ticks: int
+    closed_ticks: int
+    max_opening: float
+    """Opening (m) at ``open_ticks``; the closed end is 0 m."""
+
+    def ticks_from_opening(self, opening: float) -> int:
+        """Clipped to [0, max_opening]: beyond its end stops a gripper only squeezes itself."""
+        fraction = min(max(opening, 0.0), self.max_opening) / self.max_opening
+        return round(self.closed_ticks + fraction * (self.open_ticks - self.closed_ticks))
+
+    def opening_from_ticks(self, ticks: int) -> float:
+        """Not clipped: a reading past an end means the calibration is off, and shows it."""
+        span = self.open_ticks - self.closed_ticks
+        return (ticks - self.closed_ticks) / span * self.max_opening

@@ -2,6 +2,7 @@
 
 ``URRTDEDriver`` (driver.py) implements the warden driver hooks; ``URSettings`` (settings.py) is
 its manifest table; ``tables.py`` holds the controller's status words and what they mean;
-``link.py`` is the only code that touches ur_rtde objects; ``probe.py`` checks a controller in
-plain sockets before the library (whose constructors hold the GIL) is let near it.
+``gripper.py`` is the tool-output gripper's wiring; ``link.py`` is the only code that touches
+ur_rtde objects; ``probe.py`` checks a controller in plain sockets before the library (whose
+constructors hold the GIL) is let near it.
 """

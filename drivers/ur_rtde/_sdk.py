@@ -13,6 +13,13 @@ Facts that shape every call site (measured, see shared notes "ur_rtde 1.6.5"):
   runs when the emulator came back within milliseconds; none when it came back 0.5 s later).
   The driver cannot switch this off. It checks ``isConnected()`` before every command, stops
   commanding at the first sign of loss, and calls ``reconnect()`` itself only from connect().
+- ``RTDEIOInterface`` (tool and standard outputs) has no receive thread: it writes packages
+  and never reads, so it cannot tell that the controller closed its session. ``isConnected()``
+  stays True; the first write after the close is lost silently, later ones raise RuntimeError
+  (broken pipe). Its destructor sends RTDE "pause" and waits for the answer: on a session the
+  controller has closed that throws inside the destructor and std::terminate kills the
+  process (measured, every time). So the link renews it on every connect, and releases it
+  only through a ``disconnect()`` that succeeded; see ``link.release_io``.
 """
 
 from __future__ import annotations
@@ -48,6 +55,10 @@ class ReceiveInterface(Protocol):
 
     def getTargetSpeedFraction(self) -> float: ...
 
+    def getStandardAnalogInput0(self) -> float: ...
+
+    def getStandardAnalogInput1(self) -> float: ...
+
 
 class ControlInterface(Protocol):
     """``rtde_control.RTDEControlInterface`` (uploads and talks to the ``rtde_control`` script)."""
@@ -76,6 +87,18 @@ class ControlInterface(Protocol):
     def speedStop(self, a: float) -> bool: ...
 
 
+class IOInterface(Protocol):
+    """``rtde_io.RTDEIOInterface`` (16 input recipes; writes only, fire-and-forget)."""
+
+    def isConnected(self) -> bool: ...
+
+    def reconnect(self) -> bool: ...
+
+    def disconnect(self) -> None: ...
+
+    def setToolDigitalOut(self, output_id: int, signal_level: bool) -> bool: ...
+
+
 def open_receive(host: str, frequency_hz: float, variables: list[str]) -> ReceiveInterface:
     """Connect an RTDE receive session (blocks with the GIL held until the first package)."""
     import rtde_receive  # imported on first use: a robot PC without ur_rtde runs other drivers
@@ -93,3 +116,10 @@ def open_control(host: str) -> ControlInterface:
 
     flags = rtde_control.RTDEControlInterface.Flags.FLAG_UPLOAD_SCRIPT
     return rtde_control.RTDEControlInterface(host, -1.0, flags)
+
+
+def open_io(host: str) -> IOInterface:
+    """Connect an RTDE IO session: its input recipes, then a 100 ms wait (GIL held)."""
+    import rtde_io
+
+    return rtde_io.RTDEIOInterface(host)

@@ -7,6 +7,11 @@ protective/safeguard stop → CONTROLLER_FAULT), robot mode and runtime state wh
 (→ CONTROLLER_FAULT), a timestamp that stopped advancing (→ WATCHDOG) and a lost link
 (→ LINK_LOST). All library calls run on this device's thread with a deadline; see ``_sdk``
 for why construction, destruction and blocking commands are handled with such care.
+
+With ``gripper_output`` set, a binary two-finger gripper on a tool digital output follows
+``Command.gripper`` of POSITION and VELOCITY commands (see ``gripper``): its output is written
+through ur_rtde's IO interface only when the commanded state changes, HOLD and STOP leave it as
+it is, and every read reports the measured opening as ``StateSample.gripper``.
 """
 
 from __future__ import annotations
@@ -34,6 +39,7 @@ from drivers.base import (
 from drivers.device_thread import DeviceThread
 from drivers.settings import SettingsError
 from drivers.ur_rtde import tables
+from drivers.ur_rtde.gripper import GripperWiring
 from drivers.ur_rtde.link import Link, LinkDown, LinkStalled, Mode, Snapshot
 from drivers.ur_rtde.probe import ControllerUnreachable, probe_controller
 from drivers.ur_rtde.settings import URSettings
@@ -51,6 +57,7 @@ class URRTDEDriver:
         self.settings = settings
         self._thread: DeviceThread | None = None
         self._link: Link | None = None
+        self._gripper = GripperWiring.from_settings(settings)
         self._control: ControlConfig | None = None
         self._active = False
         self._seq = 0
@@ -119,9 +126,19 @@ class URRTDEDriver:
         return StateSample(
             seq=self._seq, t_mono_ns=snapshot.t_mono_ns, source=self.name, q=snapshot.q,
             qd=snapshot.qd, wrench=snapshot.tcp_force, speed_scaling=snapshot.speed_scaling,
+            gripper=self._gripper_opening(snapshot),
         )
 
     async def write(self, command: Command) -> Applied:
+        moves = command.kind in (CommandKind.POSITION, CommandKind.VELOCITY)
+        if moves and command.gripper is not None and not math.isfinite(command.gripper):
+            return _refused(command.kind, ReasonCode.NONFINITE)
+        applied = await self._move(command)
+        if moves and applied.accepted:  # HOLD and STOP leave the gripper as it is
+            await self._grip(command.gripper)
+        return applied
+
+    async def _move(self, command: Command) -> Applied:
         link = self._link_or_raise()
         if command.kind is CommandKind.POSITION:
             if not _well_formed(command.q):
@@ -189,6 +206,21 @@ class URRTDEDriver:
         if self._link is None:
             self._link = Link(self.name, settings)
         await self._run(self._link.open, timeout_s=2 * settings.connect_timeout_s)
+
+    async def _grip(self, opening: float | None) -> None:
+        """Switch the gripper when the commanded state changes: one IO package per change, so a
+        held command costs nothing per tick (and the controller's output is not spammed)."""
+        link = self._link_or_raise()
+        if opening is None or link.gripper is None:
+            return
+        closed = link.gripper.closes(opening)
+        if closed is not link.gripper_closed:
+            await self._run(link.set_gripper, closed)
+
+    def _gripper_opening(self, snapshot: Snapshot) -> float | None:
+        if self._gripper is None or snapshot.gripper_signal is None:
+            return None
+        return self._gripper.opening_m(snapshot.gripper_signal)
 
     async def _read_checked(self, streaming: bool) -> Snapshot:
         snapshot = await self._run(self._link_or_raise().snapshot)

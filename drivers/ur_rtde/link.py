@@ -1,13 +1,16 @@
 """Everything that touches ur_rtde objects. Runs only on the device thread, one call at a time.
 
-The link owns the receive and control interfaces, the streaming mode (servo, speed or none) and
-the freshness of the data stream. Blocking commands are sent only after the stream proved fresh:
-on a dead or stalled link ur_rtde would wait up to 300 s for a "done" that never comes, and a
-thread stuck there cannot even be joined at exit.
+The link owns the receive and control interfaces (and the IO interface when the arm has a
+gripper), the streaming mode (servo, speed or none) and the freshness of the data stream.
+Blocking commands are sent only after the stream proved fresh: on a dead or stalled link
+ur_rtde would wait up to 300 s for a "done" that never comes, and a thread stuck there cannot
+even be joined at exit.
 """
 
 from __future__ import annotations
 
+import contextlib
+import ctypes
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -16,10 +19,12 @@ from enum import StrEnum
 from assurance.reasons import ReasonCode
 from drivers.base import DeviceFault, DriverInitError
 from drivers.ur_rtde import _sdk, tables
+from drivers.ur_rtde.gripper import GripperWiring
 from drivers.ur_rtde.settings import URSettings
 
 SCRIPT_START_TIMEOUT_S = 1.0
 POLL_S = 0.0005
+IO_RENEW_ATTEMPTS, IO_RENEW_BACKOFF_S = 3, 0.05
 
 
 class LinkDown(ConnectionError):
@@ -51,6 +56,8 @@ class Snapshot:
     runtime_state: int
     speed_scaling: float
     """Effective scaling: the trajectory limiter's speed_scaling times the speed slider."""
+    gripper_signal: float | None = None
+    """The gripper's feedback input as the controller reports it (None: no gripper)."""
 
 
 class Link:
@@ -59,6 +66,10 @@ class Link:
         self.settings = settings
         self.receive: _sdk.ReceiveInterface | None = None
         self.control: _sdk.ControlInterface | None = None
+        self.io: _sdk.IOInterface | None = None
+        self.gripper = GripperWiring.from_settings(settings)
+        self.gripper_closed: bool | None = None
+        """The gripper output level last written (True = closed); None: not known."""
         self.mode = Mode.IDLE
         self._last_timestamp = -1.0
         self._last_change_ns = 0
@@ -77,16 +88,19 @@ class Link:
             self._open_receive()
             self._check_ready_for_script()
             self._open_control()
+            self._open_io()
         except RuntimeError as error:  # ur_rtde reports every connection problem this way
             raise DriverInitError(self.device, f"ur_rtde could not connect to the arm at {host}: "
                                   f"{error}") from error
         self.mode = Mode.IDLE
+        self.gripper_closed = None  # whatever was written before, the controller may differ
         self._last_change_ns = time.monotonic_ns()
 
     def _open_receive(self) -> None:
         if self.receive is None:
+            feedback = [self.gripper.feedback] if self.gripper else []
             self.receive = _sdk.open_receive(self.settings.host, self.settings.frequency_hz,
-                                             tables.RECEIVE_VARIABLES)
+                                             tables.RECEIVE_VARIABLES + feedback)
         elif not self.receive.isConnected():
             self.receive.reconnect()
 
@@ -95,6 +109,30 @@ class Link:
             self.control = _sdk.open_control(self.settings.host)
         elif not self.control.isConnected():
             self.control.reconnect()
+
+    def _open_io(self) -> None:
+        if self.gripper is None:
+            return
+        if self.io is None:
+            self.io = _sdk.open_io(self.settings.host)
+        else:  # renewed every time: its isConnected() cannot tell if the controller dropped it
+            self._renew_io(self.io)
+
+    @staticmethod
+    def _renew_io(io: _sdk.IOInterface) -> None:
+        # A dropped session raises here: the "pause" it sends on disconnect finds no session.
+        with contextlib.suppress(RuntimeError):
+            io.disconnect()
+        for attempt in range(1, IO_RENEW_ATTEMPTS + 1):
+            try:
+                io.reconnect()
+                return
+            except RuntimeError:
+                # The controller frees the old session's registers once it sees that session
+                # close, which can come after the new one asks for them (IN_USE): wait a bit.
+                if attempt == IO_RENEW_ATTEMPTS:
+                    raise
+                time.sleep(IO_RENEW_BACKOFF_S)
 
     def _check_ready_for_script(self) -> None:
         # The control constructor waits 5 s (GIL held) for a script the controller will not
@@ -107,16 +145,18 @@ class Link:
                               f"script: {faults[0].detail}", faults[0].reason)
 
     def release(self) -> None:
-        """Stop the control script if healthy; drop both interfaces (their destructors sleep)."""
+        """Stop the control script if healthy; drop the interfaces (their destructors sleep)."""
         healthy = self._fresh()
-        control, receive = self.control, self.receive
-        self.control, self.receive = None, None
+        control, receive, io = self.control, self.receive, self.io
+        self.control, self.receive, self.io = None, None, None
         if control is not None:
             _close(control, healthy, control.stopScript)
             del control  # destructor runs here, on the device thread, not on the event loop
         if receive is not None:
             _close(receive, healthy, lambda: None)
             del receive
+        if io is not None:
+            release_io(io, healthy)
 
     # -- reading ------------------------------------------------------------------------------
 
@@ -129,6 +169,7 @@ class Link:
             robot_mode=receive.getRobotMode(), safety_bits=receive.getSafetyStatusBits(),
             runtime_state=receive.getRuntimeState(),
             speed_scaling=receive.getSpeedScaling() * receive.getTargetSpeedFraction(),
+            gripper_signal=getattr(receive, self.gripper.getter)() if self.gripper else None,
         )
         self._track_freshness(snapshot.timestamp, now)
         return snapshot
@@ -181,6 +222,18 @@ class Link:
         self.end_streaming()
         self._require_fresh().stopJ(self.settings.stop_deceleration, False)
 
+    def set_gripper(self, closed: bool) -> None:
+        """Switch the gripper's tool output (high = closed).
+
+        Sent only while the RTDE streams are connected: the IO session cannot notice on its own
+        that the controller went away, and its first write after that is lost without an error.
+        """
+        io, wiring = self._require_io()
+        self.gripper_closed = None  # unknown until the write has gone out
+        if not self._guarded(lambda: io.setToolDigitalOut(wiring.output, closed)):
+            raise LinkDown("ur_rtde could not send the tool digital output")
+        self.gripper_closed = closed
+
     def program_running(self) -> bool:
         """The control session's own view, which is what ur_rtde checks before every command."""
         return self._require_control().isProgramRunning()
@@ -222,7 +275,13 @@ class Link:
         except RuntimeError as error:
             raise LinkDown(f"ur_rtde: {error}") from error
 
-
+    def _require_io(self) -> tuple[_sdk.IOInterface, GripperWiring]:
+        self._require_connected()
+        if self.io is None or self.gripper is None:
+            raise LinkDown("the RTDE IO interface is closed (or no gripper is configured)")
+        if not self.io.isConnected():
+            raise LinkDown("the RTDE IO session closed")
+        return self.io, self.gripper
 
     def _require_control(self) -> _sdk.ControlInterface:
         self._require_connected()
@@ -265,3 +324,19 @@ def _close(interface: _sdk.ReceiveInterface | _sdk.ControlInterface, healthy: bo
             interface.disconnect()
     except RuntimeError:
         pass  # closing goes on regardless; the link is being dropped anyway
+
+
+def release_io(io: _sdk.IOInterface, healthy: bool) -> None:
+    """Disconnect an IO interface, or keep it alive forever if that may not work.
+
+    Its destructor disconnects when the session still counts as connected, and on a session the
+    controller has closed that throws inside a C++ destructor: std::terminate. So an interface
+    that did not disconnect cleanly is never destroyed, not even at interpreter exit (an extra
+    reference nothing releases); that costs one socket. On an unhealthy link disconnect is not
+    even tried: it waits for an answer to its "pause" without a deadline.
+    """
+    if healthy:
+        with contextlib.suppress(RuntimeError):  # dropped by the controller: kept, below
+            io.disconnect()
+    if io.isConnected():
+        ctypes.pythonapi.Py_IncRef(ctypes.py_object(io))

@@ -42,6 +42,19 @@ class URSettings:
     reconnect_attempts: int = 2
     """Extra connect attempts after the first one fails to reach the controller."""
     reconnect_backoff_s: float = 0.5
+    gripper_output: int | None = None
+    """Tool digital output (0 or 1) driving a two-finger gripper that closes while it is high;
+    none: the arm has no gripper and ``Command.gripper`` is ignored. Binary: a commanded opening
+    below half of ``gripper_max_opening_m`` closes it, half or more opens it."""
+    gripper_feedback: str = "standard_analog_input0"
+    """Analog input carrying the gripper's position signal: standard_analog_input0 or 1 (the
+    tool analog inputs cannot be read through ur_rtde 1.6.5)."""
+    gripper_feedback_closed: float = 0.0
+    """That input's reading with the gripper closed (0 m), in the controller's unit for it
+    (volts on a 0-10 V input)."""
+    gripper_feedback_open: float = 10.0
+    """That input's reading with the gripper fully open (``gripper_max_opening_m``)."""
+    gripper_max_opening_m: float = tables.GRIPPER_MAX_OPENING_M
 
     def __post_init__(self) -> None:
         problems = _problems(self)
@@ -86,8 +99,29 @@ def _problems(s: URSettings) -> list[str]:
     ]
     if not s.host.strip():
         problems.insert(0, "host is empty: set it to the controller's address")
+    problems += _gripper_problems(s)
     if not problems and s.stall_after_s >= s.call_timeout_s:
         problems.append(f"stall_periods = {s.stall_periods} at {s.frequency_hz} Hz is "
                         f"{s.stall_after_s:.3f} s, not shorter than call_timeout_s = "
                         f"{s.call_timeout_s}: a stall would look like a slow call")
+    return problems
+
+
+def _gripper_problems(s: URSettings) -> list[str]:
+    problems = []
+    if s.gripper_output is not None and s.gripper_output not in tables.TOOL_DIGITAL_OUTPUTS:
+        problems.append(f"gripper_output = {s.gripper_output} is not a tool digital output "
+                        f"(one of {', '.join(map(str, tables.TOOL_DIGITAL_OUTPUTS))})")
+    if s.gripper_feedback not in tables.GRIPPER_FEEDBACK_INPUTS:
+        hint = (": ur_rtde 1.6.5 cannot read the tool analog inputs, wire the signal to a "
+                "standard analog input" if s.gripper_feedback.startswith("tool_") else "")
+        problems.append(f"gripper_feedback = {s.gripper_feedback!r} is not one of "
+                        f"{', '.join(tables.GRIPPER_FEEDBACK_INPUTS)}{hint}")
+    closed, opened = s.gripper_feedback_closed, s.gripper_feedback_open
+    if not (math.isfinite(closed) and math.isfinite(opened)) or closed == opened:
+        problems.append(f"gripper_feedback_closed = {closed} and gripper_feedback_open = "
+                        f"{opened} must be two different finite readings")
+    if not (math.isfinite(s.gripper_max_opening_m) and 0.0 < s.gripper_max_opening_m <= 0.5):
+        problems.append(f"gripper_max_opening_m = {s.gripper_max_opening_m} is outside "
+                        "(0, 0.5] m")
     return problems

@@ -81,6 +81,20 @@ RECEIVE_VARIABLES = [
 ]
 """The RTDE outputs the driver subscribes to (a short recipe keeps every read cheap)."""
 
+TOOL_DIGITAL_OUTPUTS = (0, 1)
+"""Tool digital outputs of an e-Series tool flange (bits 16-17 of actual_digital_output_bits)."""
+GRIPPER_FEEDBACK_INPUTS = {
+    "standard_analog_input0": "getStandardAnalogInput0",
+    "standard_analog_input1": "getStandardAnalogInput1",
+}
+"""RTDE analog inputs a gripper's position signal can be read from, and their ur_rtde getter.
+
+Only the control box's standard inputs: ur_rtde 1.6.5's receive interface has no getter for the
+tool analog inputs, and its own type table does not know ``tool_analog_input0`` (it could not
+unpack a package that carried it)."""
+GRIPPER_MAX_OPENING_M = 0.085
+"""Fully open two-finger gripper (Robotiq 2F-85 class), metres between the pads."""
+
 
 def version_supported(version: tuple[int, ...]) -> bool:
     return version[0] == SUPPORTED_MAJOR and tuple(version[:3]) >= MIN_VERSION

@@ -40,11 +40,22 @@ def _ur(manifest: Manifest, plant: str) -> Launch:
 
 
 def _dynamixel(manifest: Manifest, plant: str) -> Launch:
-    ids = manifest.driver_settings.get("ids", (1, 2, 3, 4, 5, 6))
-    baud = manifest.driver_settings.get("baud", 1_000_000)
-    return Launch("stubs.dynamixel_bus",
-                  ("--ids", ",".join(map(str, ids)), "--baud", str(baud), "--plant", plant),
-                  lambda ready: {"port": ready["port"]}, lambda _: "127.0.0.1")
+    table = manifest.driver_settings
+    ids = table.get("ids", (1, 2, 3, 4, 5, 6))
+    baud = table.get("baud", 1_000_000)
+    args = ("--ids", ",".join(map(str, ids)), "--baud", str(baud), "--plant", plant,
+            *_flags(table, {"gripper_id": "--gripper-id", "gripper_open_ticks":
+                            "--gripper-open-ticks", "gripper_closed_ticks":
+                            "--gripper-closed-ticks"}))
+    return Launch("stubs.dynamixel_bus", args, lambda ready: {"port": ready["port"]},
+                  lambda _: "127.0.0.1")
+
+
+def _flags(table: Mapping[str, Any], flags: Mapping[str, str]) -> tuple[str, ...]:
+    """Emulator flags for the driver settings the manifest sets (the device's build: what a
+    real bus or cell would have wired)."""
+    return tuple(part for key, flag in flags.items() if table.get(key) is not None
+                 for part in (flag, str(table[key])))
 
 
 def _canopen(manifest: Manifest, plant: str) -> Launch:
@@ -55,7 +66,9 @@ def _canopen(manifest: Manifest, plant: str) -> Launch:
     nodes = table.get("node_ids", (1, 2, 3, 4, 5, 6))
     counts = table.get("counts_per_rev", (2**23,) * len(nodes))
     args = ("--channel", group, "--port", str(port), "--nodes", ",".join(map(str, nodes)),
-            "--counts-per-rev", str(int(counts[0])), "--plant", plant)
+            "--counts-per-rev", str(int(counts[0])), "--plant", plant,
+            *_flags(table, {"gripper_node": "--gripper-node",
+                            "gripper_counts_per_m": "--gripper-counts-per-m"}))
     return Launch("stubs.cia402_drive", args,
                   lambda ready: {"interface": "udp_multicast", "channel": ready["channel"],
                                  "udp_port": ready["port"]}, lambda _: "127.0.0.1")

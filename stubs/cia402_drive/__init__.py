@@ -1,6 +1,8 @@
 """Emulated CiA 402 servo drives on CANopen, for the canopen402 driver (see emulator.py)."""
 
-from stubs.cia402_drive.drive import EmulatedDrive, Encoder
+from stubs.cia402_drive.drive import EmulatedDrive
 from stubs.cia402_drive.emulator import DriveEmulator, EmulatorConfig, encoders_for
+from stubs.cia402_drive.encoders import Encoder, LinearEncoder
 
-__all__ = ["DriveEmulator", "EmulatedDrive", "EmulatorConfig", "Encoder", "encoders_for"]
+__all__ = ["DriveEmulator", "EmulatedDrive", "EmulatorConfig", "Encoder", "LinearEncoder",
+           "encoders_for"]

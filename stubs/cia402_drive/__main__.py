@@ -3,7 +3,8 @@
 Prints ``READY {json}`` (fault port, bus, nodes) once the drives have booted, then serves the
 bus until SIGTERM/SIGINT. Faults arrive on a loopback line-JSON port (stubs.fault_control):
 ``emcy`` (node, code), ``heartbeat_stop`` (node), ``quick_stop`` (node), ``ignore_mode`` (node),
-``clear``.
+``clear``. With ``--gripper-node N`` one more drive (node N) moves the plant's gripper: its
+CSP target is the opening in counts (``--gripper-counts-per-m``), and faults name it like a joint.
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ import sys
 import threading
 from typing import Any
 
+from drivers.canopen402.units import GRIPPER_COUNTS_PER_M
 from stubs.cia402_drive.emulator import DriveEmulator, EmulatorConfig, encoders_for
 from stubs.fault_control import FaultControlServer
 from stubs.plant.base import Plant
@@ -39,6 +41,10 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--directions", type=_ints, default=(),
                         help="1 or -1 per joint (default all 1)")
     parser.add_argument("--offsets", type=_ints, default=(), help="counts at q = 0 per joint")
+    parser.add_argument("--gripper-node", type=int, default=None,
+                        help="node id of a gripper drive (position = opening); default none")
+    parser.add_argument("--gripper-counts-per-m", type=float, default=GRIPPER_COUNTS_PER_M,
+                        help="gripper position counts per metre of opening")
     parser.add_argument("--fault-port", type=int, default=0, help="0: any free port")
     return parser.parse_args(argv)
 
@@ -58,6 +64,7 @@ def main(argv: list[str] | None = None) -> int:
         interface=args.interface, channel=args.channel, udp_port=args.port,
         node_ids=args.nodes,
         encoders=encoders_for(args.nodes, args.counts_per_rev, args.directions, args.offsets),
+        gripper_node=args.gripper_node, gripper_counts_per_m=args.gripper_counts_per_m,
     )
     emulator = DriveEmulator(config, make_plant(args.plant)).start()
     gc.freeze()  # object dictionaries and the plant live forever: keep full GC passes short
@@ -69,7 +76,7 @@ def main(argv: list[str] | None = None) -> int:
         signal.signal(signum, lambda *_: stop.set())
     ready = {"fault_port": faults.address[1], "interface": args.interface,
              "channel": args.channel, "port": args.port, "nodes": list(args.nodes),
-             "plant": args.plant}
+             "gripper_node": args.gripper_node, "plant": args.plant}
     print("READY " + json.dumps(ready), flush=True)
     try:
         stop.wait()

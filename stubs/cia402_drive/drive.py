@@ -5,14 +5,13 @@ the 402 state machine behind 0x6040/0x6041, modes of operation (0x6060/0x6061, 0
 PDO set the master configured over SDO (rebuilt on each NMT start), RPDO decoding (applied at
 SYNC for synchronous RPDOs), TPDO transmission on SYNC, and drive faults with EMCY.
 
-Position counts are converted with the emulator's own :class:`Encoder`, written independently of
-the driver's units module, so a wrong conversion on either side shows up as wrong motion.
+Position counts are converted with the emulator's own encoders (``encoders.py``): radians for a
+joint drive, metres of opening for a gripper drive.
 """
 
 from __future__ import annotations
 
 import logging
-import math
 import struct
 import threading
 from collections.abc import Callable
@@ -30,6 +29,7 @@ from drivers.canopen402.tables import (
     Mode,
     StatusBit,
 )
+from stubs.cia402_drive.encoders import Encoder, LinearEncoder
 from stubs.cia402_drive.state_machine import PowerStateMachine
 
 log = logging.getLogger(__name__)
@@ -37,21 +37,6 @@ log = logging.getLogger(__name__)
 ABORT_VALUE_RANGE = 0x06090030
 FOLLOWING_ERROR_EMCY = 0x8611
 NO_LIMIT = 0xFFFFFFFF
-
-
-@dataclass(frozen=True, slots=True)
-class Encoder:
-    """How this joint's position sensor counts: the drive's side of the units contract."""
-
-    counts_per_rev: int
-    direction: int = 1
-    offset: int = 0
-
-    def counts(self, q: float) -> int:
-        return round(q * self.direction * self.counts_per_rev / (2 * math.pi)) + self.offset
-
-    def rad(self, counts: int) -> float:
-        return (counts - self.offset) * self.direction * 2 * math.pi / self.counts_per_rev
 
 
 CACHED_PARAMETERS = {
@@ -64,8 +49,10 @@ CACHED_PARAMETERS = {
 
 
 class EmulatedDrive:
-    def __init__(self, node: LocalNode, encoder: Encoder, lock: threading.RLock,
-                 q0: float, following_error_rad: float) -> None:
+    def __init__(self, node: LocalNode, encoder: Encoder | LinearEncoder, lock: threading.RLock,
+                 q0: float, following_error: float | None) -> None:
+        """``q0`` and ``following_error`` are in the encoder's unit (rad or m); a None
+        ``following_error`` leaves following-error supervision off (0x6065 = 0xFFFFFFFF)."""
         self.node = node
         self.encoder = encoder
         self.machine = PowerStateMachine()
@@ -85,7 +72,8 @@ class EmulatedDrive:
         self._pending_rpdos: dict[int, PdoMap] = {}
         self._limits = (0, 0)
         self.rated_torque = int(node.sdo[Index.RATED_TORQUE].raw)
-        self.following_window = encoder.counts_per_rev * following_error_rad / (2 * math.pi)
+        self.following_window = float(NO_LIMIT) if following_error is None else (
+            encoder.counts_per_unit * following_error)
         node.sdo[Index.FOLLOWING_ERROR_WINDOW].raw = round(self.following_window)
         self._live: dict[int, Callable[[], int]] = {
             Index.STATUSWORD: self.statusword,
@@ -115,11 +103,16 @@ class EmulatedDrive:
     def operational(self) -> bool:
         return self.node.nmt.state == "OPERATIONAL"
 
+    @property
+    def follows_target(self) -> bool:
+        """Enabled in CSP: the drive moves its axis to the target it receives every SYNC."""
+        return self.machine.enabled and self.mode == Mode.CYCLIC_SYNCHRONOUS_POSITION
+
     # -- object dictionary ---------------------------------------------------------------------
 
     def statusword(self) -> int:
         word = self.machine.statusword_bits() | StatusBit.REMOTE
-        if self.machine.enabled and self.mode == Mode.CYCLIC_SYNCHRONOUS_POSITION:
+        if self.follows_target:
             word |= StatusBit.FOLLOWS_COMMAND
         return word
 
@@ -244,9 +237,9 @@ class EmulatedDrive:
 
     def joint_target(self, q_now: float) -> float:
         """Where the plant should take this joint: the CSP target, or a held position."""
-        if self.machine.enabled and self.mode == Mode.CYCLIC_SYNCHRONOUS_POSITION:
+        if self.follows_target:
             self._hold_q = None
-            return self.encoder.rad(self._limited(self.target_counts))
+            return self.encoder.position(self._limited(self.target_counts))
         if self._hold_q is None:
             self._hold_q = q_now  # brake (or quick-stop) position: where it was when it stopped
         return self._hold_q
@@ -257,7 +250,7 @@ class EmulatedDrive:
 
     def update_actual(self, q: float, qd: float, effort: float) -> None:
         position = self.encoder.counts(q)
-        velocity = round(qd * self.encoder.direction * self.encoder.counts_per_rev / (2 * math.pi))
+        velocity = round(qd * self.encoder.direction * self.encoder.counts_per_unit)
         torque = round(1e6 * effort * self.encoder.direction / max(self.rated_torque, 1))
         self.actual = (position, velocity, max(-32768, min(32767, torque)))
         self._check_following_error(position)
@@ -265,9 +258,7 @@ class EmulatedDrive:
             self.machine.after_standstill()
 
     def _check_following_error(self, position: int) -> None:
-        if not (self.machine.enabled and self.mode == Mode.CYCLIC_SYNCHRONOUS_POSITION):
-            return
-        if self.following_window >= NO_LIMIT:
+        if not self.follows_target or self.following_window >= NO_LIMIT:
             return
         if abs(self._limited(self.target_counts) - position) > self.following_window:
             self.fault(FOLLOWING_ERROR_EMCY, 0x20)  # error register bit 5: device profile

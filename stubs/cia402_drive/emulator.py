@@ -1,10 +1,13 @@
-"""A bus of emulated CiA 402 drives, one per joint, all moving one plant.
+"""A bus of emulated CiA 402 drives, one per joint and optionally one for the gripper, all
+moving one plant.
 
 On every SYNC the emulator applies the RPDOs received since the last one, commands the plant
 (each enabled CSP drive's target; everything else held where it stopped), steps the plant by the
 wall time since the previous SYNC (capped, so a pause in SYNC is not a jump), and answers with
-the TPDOs. Frames are handled on canopen's notifier thread; one lock orders them against fault
-injection. In-process on ``virtual``; across processes on ``udp_multicast`` (``__main__``).
+the TPDOs. The gripper drive is a drive like the others (NMT, SDO, PDOs, 402 states, heartbeat,
+EMCY, fault injection by node id); only its link to the plant differs (``gripper.py``).
+Frames are handled on canopen's notifier thread; one lock orders them against fault injection.
+In-process on ``virtual``; across processes on ``udp_multicast`` (``__main__``).
 """
 
 from __future__ import annotations
@@ -22,7 +25,10 @@ import canopen
 
 from drivers.canopen402.link import load_object_dictionary, widen_receive_buffer
 from drivers.canopen402.tables import DEFAULT_EDS
-from stubs.cia402_drive.drive import EmulatedDrive, Encoder
+from drivers.canopen402.units import GRIPPER_COUNTS_PER_M
+from stubs.cia402_drive.drive import EmulatedDrive
+from stubs.cia402_drive.encoders import Encoder, LinearEncoder
+from stubs.cia402_drive.gripper import GripperLink
 from stubs.plant.base import KinematicPlant, Plant
 
 log = logging.getLogger(__name__)
@@ -47,10 +53,19 @@ class EmulatorConfig:
     plant_timestep_ns: int = 1_000_000
     q0: tuple[float, ...] | None = None
     """Initial joint positions; None: the plant's own default pose."""
+    gripper_node: int | None = None
+    """One more drive, whose position is the plant's gripper opening; None: no gripper drive."""
+    gripper_counts_per_m: float = GRIPPER_COUNTS_PER_M
 
     def __post_init__(self) -> None:
         if len(self.encoders) != len(self.node_ids):
             raise ValueError(f"{len(self.encoders)} encoders for {len(self.node_ids)} nodes")
+        if self.gripper_node is not None and (
+                self.gripper_node in self.node_ids or not 1 <= self.gripper_node <= 127):
+            raise ValueError(f"gripper node {self.gripper_node} must be within 1..127 and not "
+                             "one of the joint nodes")
+        if not self.gripper_counts_per_m > 0:
+            raise ValueError("gripper_counts_per_m must be positive")
 
 
 @dataclass(slots=True)
@@ -72,6 +87,9 @@ class DriveEmulator:
             self.plant.reset(config.q0)
         self.lock = threading.RLock()
         self.drives: dict[int, EmulatedDrive] = {}
+        """Every drive by node id: the joints in joint order, then the gripper."""
+        self._joints: tuple[EmulatedDrive, ...] = ()
+        self.gripper: GripperLink | None = None
         self._network: canopen.Network | None = None
         self._clock = _SyncClock()
         self.faults: dict[str, Callable[..., None]] = {
@@ -104,14 +122,26 @@ class DriveEmulator:
         return self
 
     def _add_drives(self, network: canopen.Network) -> None:
-        q_now = self.plant.state().q
+        state = self.plant.state()
         for joint, (node_id, encoder) in enumerate(
             zip(self.config.node_ids, self.config.encoders, strict=True)
         ):
-            node = network.create_node(
-                node_id, load_object_dictionary(self.config.eds_path, node_id))
-            self.drives[node_id] = EmulatedDrive(node, encoder, self.lock, q_now[joint],
-                                                 self.config.following_error_rad)
+            self.drives[node_id] = EmulatedDrive(
+                self._create_node(network, node_id), encoder, self.lock, state.q[joint],
+                self.config.following_error_rad)
+        self._joints = tuple(self.drives.values())
+        node_id = self.config.gripper_node
+        if node_id is not None:
+            # No following-error supervision: a grasp holds the fingers off their target.
+            drive = EmulatedDrive(self._create_node(network, node_id),
+                                  LinearEncoder(self.config.gripper_counts_per_m), self.lock,
+                                  state.gripper, None)
+            self.drives[node_id] = drive
+            self.gripper = GripperLink(drive)
+
+    def _create_node(self, network: canopen.Network, node_id: int) -> canopen.LocalNode:
+        return network.create_node(node_id,
+                                   load_object_dictionary(self.config.eds_path, node_id))
 
     def stop(self) -> None:
         network, self._network = self._network, None
@@ -151,16 +181,20 @@ class DriveEmulator:
                 drive.transmit_tpdos(self._clock.count)
 
     def _move_plant(self) -> None:
-        drives = list(self.drives.values())
-        q_now = self.plant.state().q
-        self.plant.command_position([d.joint_target(q) for d, q in zip(drives, q_now,
+        now = self.plant.state()
+        self.plant.command_position([d.joint_target(q) for d, q in zip(self._joints, now.q,
                                                                         strict=True)])
+        if self.gripper is not None:
+            self.gripper.command(self.plant, now.gripper)
         steps = self._steps_due()
         if steps:
             self.plant.step(steps)
         state = self.plant.state()
-        for drive, q, qd, effort in zip(drives, state.q, state.qd, state.effort, strict=True):
+        for drive, q, qd, effort in zip(self._joints, state.q, state.qd, state.effort,
+                                        strict=True):
             drive.update_actual(q, qd, effort)
+        if self.gripper is not None:
+            self.gripper.measure(state)
 
     def _steps_due(self) -> int:
         """Plant steps for the wall time since the previous SYNC, capped at a few cycles."""
@@ -173,7 +207,7 @@ class DriveEmulator:
         return steps
 
     def _cycle_ns(self) -> int:
-        first = next(iter(self.drives.values()))
+        first = self._joints[0]
         return (first.cycle_us or DEFAULT_CYCLE_US) * 1000
 
     # -- fault injection -----------------------------------------------------------------------

@@ -21,6 +21,9 @@ COUNTS_PER_REV = 2**23
 """A 23-bit joint encoder: one count is 0.75 µrad, below the suite's 1e-6 rad tolerance."""
 DIRECTIONS = (1, -1, 1, 1, -1, 1)
 OFFSETS = (0, 1000, -5000, 123456, 0, 42)
+GRIPPER_NODE = 7
+"""The gripper drive, when a test asks for one: the next node id after the arm's, as in
+manifests/sim-canopen.toml."""
 
 
 TEST_PERIOD_NS = 4_000_000
@@ -45,20 +48,23 @@ def unique_udp_bus() -> tuple[str, int]:
 
 
 def emulator_config(interface: str, channel: str, udp_port: int = 43113,
-                    node_ids: tuple[int, ...] = NODE_IDS) -> EmulatorConfig:
+                    node_ids: tuple[int, ...] = NODE_IDS,
+                    gripper_node: int | None = None) -> EmulatorConfig:
     return EmulatorConfig(
         interface=interface, channel=channel, udp_port=udp_port, node_ids=node_ids,
         encoders=encoders_for(node_ids, COUNTS_PER_REV, DIRECTIONS[: len(node_ids)],
                               OFFSETS[: len(node_ids)]),
+        gripper_node=gripper_node,
     )
 
 
-def emulator_args(group: str, port: int) -> tuple[str, ...]:
+def emulator_args(group: str, port: int, gripper_node: int | None = None) -> tuple[str, ...]:
     """Command-line arguments of ``python -m stubs.cia402_drive`` for the same arm."""
+    gripper = () if gripper_node is None else ("--gripper-node", str(gripper_node))
     return ("--channel", group, "--port", str(port),
             "--nodes", ",".join(map(str, NODE_IDS)), "--counts-per-rev", str(COUNTS_PER_REV),
             "--directions", ",".join(map(str, DIRECTIONS)),
-            "--offsets", ",".join(map(str, OFFSETS)))
+            "--offsets", ",".join(map(str, OFFSETS)), *gripper)
 
 
 def driver_settings(interface: str, channel: str, udp_port: int = 43113,

@@ -1,7 +1,8 @@
 """A Dynamixel Protocol 2.0 bus of X-series servos on a pseudo-terminal, backed by a plant.
 
 Run it as ``python -m stubs.dynamixel_bus --ids 1,2,3,4,5,6``: it prints
-``READY {"port": "/dev/pts/N", "fault_port": P}`` once the pty answers. The real
+``READY {"port": "/dev/pts/N", "fault_port": P}`` once the pty answers. ``--gripper-id N``
+adds one more servo that drives the plant's gripper instead of a joint. The real
 ``dynamixel_sdk`` opens ``port`` like a U2D2 adapter. Faults are injected over ``fault_port``
 (:func:`stubs.fault_control.inject`): ``silent``, ``crc``, ``hardware_error``, ``clear``.
 

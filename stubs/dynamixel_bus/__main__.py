@@ -1,7 +1,9 @@
-"""``python -m stubs.dynamixel_bus --ids 1,2,3,4,5,6 [--baud 1000000] [--plant kinematic|mujoco]``.
+"""``python -m stubs.dynamixel_bus --ids 1,2,3,4,5,6 [--baud 1000000] [--plant kinematic|mujoco]
+[--gripper-id 7 [--gripper-open-ticks 2048] [--gripper-closed-ticks 3072]]``.
 
-Opens a pseudo-terminal, puts one emulated X-series servo per id behind it, steps the plant in
-real time, and prints ``READY {"port": ..., "fault_port": ...}``. Runs until SIGTERM/SIGINT or
+Opens a pseudo-terminal, puts one emulated X-series servo per id behind it (plus the gripper's
+servo, which drives the plant's gripper), steps the plant in real time, and prints
+``READY {"port": ..., "fault_port": ...}``. Runs until SIGTERM/SIGINT or
 until its parent dies (so a crashed test run does not leave a bus spinning on a shared core).
 """
 
@@ -21,7 +23,12 @@ import tty
 from stubs.dynamixel_bus.bus import Bus
 from stubs.dynamixel_bus.control_table import ServoTable
 from stubs.dynamixel_bus.packet import Frame, FrameDecoder
-from stubs.dynamixel_bus.plant_link import PlantLink
+from stubs.dynamixel_bus.plant_link import (
+    GRIPPER_CLOSED_TICKS,
+    GRIPPER_OPEN_TICKS,
+    GripperLink,
+    PlantLink,
+)
 from stubs.fault_control import FaultControlServer
 from stubs.plant.base import KinematicPlant, Plant
 from stubs.plant.realtime import RealtimeStepper
@@ -43,6 +50,12 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--fault-port", type=int, default=0, help="0 picks a free port")
     parser.add_argument("--no-fast-sync-read", action="store_true",
                         help="behave like firmware without Fast Sync Read (0x8A)")
+    parser.add_argument("--gripper-id", type=int, default=None,
+                        help="add a gripper servo with this id (drives the plant's gripper)")
+    parser.add_argument("--gripper-open-ticks", type=int, default=GRIPPER_OPEN_TICKS,
+                        help="gripper position at the fully open 0.085 m")
+    parser.add_argument("--gripper-closed-ticks", type=int, default=GRIPPER_CLOSED_TICKS,
+                        help="gripper position at 0 m (closed)")
     args = parser.parse_args(argv)
     try:
         args.ids = tuple(int(part) for part in args.ids.split(","))
@@ -52,7 +65,25 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         0 <= i <= 252 for i in args.ids
     ):
         parser.error(f"--ids: need distinct ids in 0..252, got {args.ids}")
+    _check_gripper(parser, args)
     return args
+
+
+def _check_gripper(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    if args.gripper_id is not None and (args.gripper_id in args.ids
+                                        or not 0 <= args.gripper_id <= 252):
+        parser.error(f"--gripper-id: need an id in 0..252 that is not in --ids, "
+                     f"got {args.gripper_id}")
+    ends = (args.gripper_open_ticks, args.gripper_closed_ticks)
+    if ends[0] == ends[1] or not all(0 <= tick <= 4095 for tick in ends):
+        parser.error(f"--gripper-open-ticks/--gripper-closed-ticks: need two distinct ticks "
+                     f"in 0..4095, got {ends}")
+
+
+def make_gripper(args: argparse.Namespace) -> GripperLink | None:
+    if args.gripper_id is None:
+        return None
+    return GripperLink(args.gripper_id, args.gripper_open_ticks, args.gripper_closed_ticks)
 
 
 def make_plant(kind: str, dof: int) -> Plant:
@@ -121,8 +152,11 @@ def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     plant = make_plant(args.plant, len(args.ids))
     stepper = RealtimeStepper(plant)
-    servos = {i: ServoTable(i, args.model, BAUD_CODES[args.baud]) for i in args.ids}
-    bus = Bus(servos, PlantLink(stepper, args.ids), fast_sync_read=not args.no_fast_sync_read)
+    gripper = make_gripper(args)
+    every = (*args.ids, gripper.servo_id) if gripper else args.ids
+    servos = {i: ServoTable(i, args.model, BAUD_CODES[args.baud]) for i in every}
+    link = PlantLink(stepper, args.ids, gripper)
+    bus = Bus(servos, link, fast_sync_read=not args.no_fast_sync_read)
     bus.power_on()
     server = PtyServer(bus, args.baud)
     handlers = {**bus.fault_handlers(), **world_handlers(plant, stepper.lock)}
@@ -133,7 +167,7 @@ def main(argv: list[str] | None = None) -> int:
     faults.start()
     try:
         ready = {"port": server.port, "fault_port": faults.address[1], "ids": list(args.ids),
-                 "baud": args.baud, "plant": args.plant}
+                 "gripper_id": args.gripper_id, "baud": args.baud, "plant": args.plant}
         print("READY " + json.dumps(ready), flush=True)
         server.serve()
     finally:

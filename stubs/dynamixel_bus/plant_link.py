@@ -3,6 +3,10 @@
 Servo ``ids[j]`` turns plant joint ``j``; its shaft angle is the joint angle, centre tick 2048 at
 0 rad. A servo with torque off is limp on real hardware; the plant has no "limp", so the joint
 holds where it is (the kinematic plant has no gravity to make the difference visible).
+
+An optional gripper servo (:class:`GripperLink`) drives the plant's gripper instead of a joint:
+its goal, while torque is on, is the commanded opening, and its present position reports the
+plant's measured opening, both linear between the closed tick (0 m) and the open tick.
 """
 
 from __future__ import annotations
@@ -10,9 +14,11 @@ from __future__ import annotations
 import math
 import sys
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 
 from stubs.dynamixel_bus.control_table import Addr, ServoTable
 from stubs.plant.realtime import RealtimeStepper
+from stubs.robot_model import GRIPPER_MAX_OPENING
 
 TICKS_PER_RAD = 4096 / (2.0 * math.pi)
 CENTRE_TICK = 2048
@@ -23,6 +29,9 @@ AMPS_PER_CURRENT_UNIT = 0.00269
 TORQUE_PER_AMP = 1.78
 """XM430-W350 at 12 V: 4.1 N·m stall torque at 2.3 A."""
 MOVING_THRESHOLD_RAD_S = 0.02
+GRIPPER_OPEN_TICKS = 2048
+GRIPPER_CLOSED_TICKS = 3072
+"""Default gripper end ticks: open at the centre tick, closed a quarter turn further."""
 
 
 def rad_to_ticks(q: float) -> int:
@@ -33,12 +42,36 @@ def ticks_to_rad(ticks: int) -> float:
     return (ticks - CENTRE_TICK) / TICKS_PER_RAD
 
 
+@dataclass(frozen=True, slots=True)
+class GripperLink:
+    """The gripper servo: which id, and where its ends are in ticks."""
+
+    servo_id: int
+    open_ticks: int = GRIPPER_OPEN_TICKS
+    closed_ticks: int = GRIPPER_CLOSED_TICKS
+
+    def __post_init__(self) -> None:
+        if self.open_ticks == self.closed_ticks:
+            raise ValueError(f"gripper open and closed ticks are both {self.open_ticks}")
+
+    def opening(self, ticks: int) -> float:
+        """The opening a goal asks for, within the gripper's travel (its end stops)."""
+        fraction = (ticks - self.closed_ticks) / (self.open_ticks - self.closed_ticks)
+        return min(max(fraction, 0.0), 1.0) * GRIPPER_MAX_OPENING
+
+    def ticks(self, opening: float) -> int:
+        fraction = opening / GRIPPER_MAX_OPENING
+        return round(self.closed_ticks + fraction * (self.open_ticks - self.closed_ticks))
+
+
 class PlantLink:
-    def __init__(self, stepper: RealtimeStepper, ids: Sequence[int]) -> None:
+    def __init__(self, stepper: RealtimeStepper, ids: Sequence[int],
+                 gripper: GripperLink | None = None) -> None:
         if stepper.plant.dof != len(ids):
             raise ValueError(f"{len(ids)} servo ids for a plant with {stepper.plant.dof} joints")
         self.stepper = stepper
         self.ids = tuple(ids)
+        self.gripper = gripper
 
     def refresh(self, servos: Mapping[int, ServoTable]) -> None:
         """Copy the plant's measured state into every servo's present-value registers."""
@@ -52,6 +85,10 @@ class PlantLink:
             servo.set(Addr.PRESENT_VELOCITY, 4, round(qd / RAD_S_PER_VELOCITY_UNIT))
             servo.set(Addr.PRESENT_CURRENT, 2, _current_units(effort))
             servo.set(Addr.MOVING, 1, int(abs(qd) > MOVING_THRESHOLD_RAD_S))
+        if self.gripper is not None:
+            # Position only: the plant reports no finger speed or force to fill the others.
+            ticks = self.gripper.ticks(state.gripper)
+            servos[self.gripper.servo_id].set(Addr.PRESENT_POSITION, 4, ticks)
 
     def apply(self, servos: Mapping[int, ServoTable]) -> None:
         """Command the plant: torque-on joints go to their goal, torque-off joints stay put."""
@@ -69,6 +106,17 @@ class PlantLink:
                 # hit its end stop, so the joints stay where they are.
                 print(f"dynamixel_bus: plant refused goals {target}: {error}", file=sys.stderr)
                 self.stepper.plant.hold()
+            self._apply_gripper(servos)
+
+    def _apply_gripper(self, servos: Mapping[int, ServoTable]) -> None:
+        """A torque-on gripper goes to its goal; repeating the same opening costs the plant
+        nothing, so every write may resend it. Torque off: the fingers stay where they are."""
+        if self.gripper is None:
+            return
+        servo = servos[self.gripper.servo_id]
+        if servo.torque_enabled:
+            goal = servo.get(Addr.GOAL_POSITION, 4, signed=True)
+            self.stepper.plant.command_gripper(self.gripper.opening(goal))
 
 
 def _current_units(effort_nm: float) -> int:

@@ -79,7 +79,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         controller.start()
         handlers = {**controller.fault_handlers(),
-                    **world_handlers(plant, controller.stepper.lock)}
+                    **world_handlers(plant, controller.plant_lock)}
         control = FaultControlServer(args.host, args.control_port, handlers)
     except OSError as error:
         print(f"ur_controller: cannot listen on {args.host}: {error}", file=sys.stderr)

@@ -1,8 +1,12 @@
 """The emulated UR controller: one control cycle at 500 Hz over a plant, three servers, faults.
 
-Each cycle runs the uploaded control script once (its ``sync()``), takes one :class:`Frame`,
-and sends every started RTDE session its data package. The plant itself is stepped on the
-wall clock by a :class:`RealtimeStepper`. Lock order: controller lock, then the plant lock.
+Each cycle runs the uploaded control script once (its ``sync()``), lets the gripper follow its
+tool output (:mod:`~stubs.ur_controller.io_board`), takes one :class:`Frame`, and sends every
+started RTDE session its data package. The plant steps inside that cycle, as the arm follows
+a real controller's servo loop: a free-running stepper thread beside it aliased against the
+client's 500 Hz stream (two setpoints in one physics step, none in the next), and the plant's
+velocity feed-forward turned that into jerks of tens of newtons at the wrist.
+Lock order: controller lock, then the plant lock.
 """
 
 from __future__ import annotations
@@ -17,9 +21,9 @@ from dataclasses import dataclass
 
 from stubs.fault_control import Handler
 from stubs.plant.base import Plant
-from stubs.plant.realtime import RealtimeStepper
 from stubs.ur_controller.dashboard import serve_dashboard, serve_script_port
 from stubs.ur_controller.frame import Frame, take_frame
+from stubs.ur_controller.io_board import IOBoard
 from stubs.ur_controller.listener import Listener
 from stubs.ur_controller.rtde_server import RTDESession, ServerContext
 from stubs.ur_controller.script import ControlScript
@@ -52,13 +56,18 @@ class URController:
         self.plant = plant
         self.status = ControllerStatus()
         self.registers = RegisterBank()
+        self.io = IOBoard()
         self.lock = threading.Lock()
-        self.stepper = RealtimeStepper(plant)
-        self.script = ControlScript(self.status, self.registers, plant)
+        self.plant_lock = threading.Lock()
+        """Held for every plant access (the cycle, the world port of the cell's evaluator)."""
+        self._steps_per_cycle = max(1, round(1e9 / config.cycle_hz / plant.timestep_ns))
+        self.script = ControlScript(self.status, self.registers, plant,
+                                    1.0 / config.cycle_hz)
         self.stalled = False
         self._sessions: set[RTDESession] = set()
         self._sessions_lock = threading.Lock()
-        self._context = ServerContext(config.version, config.cycle_hz, self.registers, self.lock)
+        self._context = ServerContext(config.version, config.cycle_hz, self.registers, self.lock,
+                                      self.io)
         self._stop = threading.Event()
         self._boot = time.monotonic()
         self._cycle_thread = threading.Thread(target=self._run, name="cycle", daemon=True)
@@ -75,7 +84,6 @@ class URController:
         """Bind every port first (fails loudly if one is taken), then start the cycle."""
         for listener in (self.rtde, self.dashboard, self.script_port):
             listener.start()
-        self.stepper.start()
         self._cycle_thread.start()
         return self
 
@@ -84,7 +92,8 @@ class URController:
         for listener in (self.rtde, self.dashboard, self.script_port):
             listener.stop()
         self._drop_sessions()
-        self.stepper.stop()
+        if self._cycle_thread.is_alive():
+            self._cycle_thread.join(timeout=1.0)
 
     # -- what the dashboard and the script port ask for ------------------------------------------
 
@@ -123,7 +132,15 @@ class URController:
             "disconnect": lambda _: self._disconnect(),
             "speed_scaling": lambda request: self._set_speed_scaling(float(request["value"])),
             "clear": lambda _: self._clear(),
+            "io_state": lambda _: self._io_state(),
         }
+
+    def _io_state(self) -> dict[str, object]:
+        """Not a fault: what the outputs and the gripper really are (tests, no RTDE needed)."""
+        with self._locked():
+            return {"digital_output_bits": self.io.digital_output_bits,
+                    "gripper_m": self.plant.state().gripper,
+                    "output_packages": dict(self.io.packages)}
 
     def _safety_stop(self, mode: SafetyMode, bits: tuple[SafetyBit, ...]) -> None:
         # As on the real controller: the program leaves PLAYING, so ur_rtde's commands fail.
@@ -183,8 +200,10 @@ class URController:
         started = time.perf_counter()
         with self._locked():
             self.script.step()
+            self.io.drive_gripper(self.plant)
+            self.plant.step(self._steps_per_cycle)
             return take_frame(time.monotonic() - self._boot, self.plant.state(), self.status,
-                              self.registers, time.perf_counter() - started)
+                              self.registers, self.io, time.perf_counter() - started)
 
     def _publish(self, frame: Frame, cycle: int) -> None:
         with self._sessions_lock:
@@ -217,5 +236,5 @@ class URController:
 
     @contextlib.contextmanager
     def _locked(self) -> Iterator[None]:
-        with self.lock, self.stepper.lock:
+        with self.lock, self.plant_lock:
             yield

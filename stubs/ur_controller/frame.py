@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from stubs.plant.base import PlantState
+from stubs.ur_controller.io_board import VOLTAGE_INPUTS, IOBoard
 from stubs.ur_controller.status import ControllerStatus, RegisterBank, RobotMode
 from stubs.ur_controller.ur_types import STRUCT_FORMAT, URType, parse_register
 
@@ -35,18 +36,21 @@ class Frame:
     status: ControllerStatus
     registers: dict[str, float | int | bool]
     execution_time: float
+    digital_output_bits: int = 0
+    analog_inputs: tuple[float, float] = (0.0, 0.0)
 
 
 def take_frame(
     timestamp: float, plant: PlantState, status: ControllerStatus, registers: RegisterBank,
-    execution_time: float,
+    io: IOBoard, execution_time: float,
 ) -> Frame:
     """Copy what the cycle produced (call under the controller lock)."""
     snapshot = ControllerStatus(
         status.robot_mode, status.safety_mode, status.safety_bits, status.runtime_state,
         status.speed_scaling, status.target_speed_fraction,
     )
-    return Frame(timestamp, plant, snapshot, dict(registers.values), execution_time)
+    return Frame(timestamp, plant, snapshot, dict(registers.values), execution_time,
+                 io.digital_output_bits, io.analog_inputs(plant))
 
 
 def tcp_pose(q: tuple[float, ...]) -> tuple[float, ...]:
@@ -110,6 +114,10 @@ PROVIDERS: dict[str, Provider] = {
     "robot_status_bits": lambda f: f.status.robot_status_bits,
     "safety_status_bits": lambda f: f.status.safety_bits,
     "tool_temperature": lambda f: ROOM_TEMPERATURE,
+    "actual_digital_output_bits": lambda f: f.digital_output_bits,
+    "standard_analog_input0": lambda f: f.analog_inputs[0],
+    "standard_analog_input1": lambda f: f.analog_inputs[1],
+    "analog_io_types": lambda f: VOLTAGE_INPUTS,
 }
 
 

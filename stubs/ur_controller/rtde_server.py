@@ -21,6 +21,7 @@ from dataclasses import dataclass
 from enum import IntEnum
 
 from stubs.ur_controller.frame import Frame, Provider, provider_for
+from stubs.ur_controller.io_board import IOBoard
 from stubs.ur_controller.status import RegisterBank
 from stubs.ur_controller.ur_types import (
     IN_USE,
@@ -78,6 +79,7 @@ class ServerContext:
     cycle_hz: float
     registers: RegisterBank
     lock: threading.Lock
+    io: IOBoard
 
     @property
     def short_version(self) -> Version:
@@ -225,6 +227,7 @@ class RTDESession:
         values = unflatten(recipe.types, recipe.unpacker.unpack(payload[1:]))
         with self.context.lock:
             self.context.registers.write(recipe.names, values)
+            self.context.io.apply(recipe.names, values)
 
     def _send(self, kind: int, payload: bytes) -> None:
         message = HEADER.pack(HEADER.size + len(payload), kind) + payload

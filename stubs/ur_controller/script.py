@@ -49,8 +49,10 @@ def parse_offsets(program: str) -> Offsets:
 class ControlScript:
     """One running instance of ``rtde_control``; ``step`` is one ``sync()`` of its main loop."""
 
-    def __init__(self, status: ControllerStatus, registers: RegisterBank, plant: Plant) -> None:
+    def __init__(self, status: ControllerStatus, registers: RegisterBank, plant: Plant,
+                 cycle_s: float = 0.002) -> None:
         self.status = status
+        self.cycle_s = cycle_s
         self.registers = registers
         self.plant = plant
         self.offsets = Offsets()
@@ -58,6 +60,7 @@ class ControlScript:
         self._blocking_until: Callable[[], bool] | None = None
         self.servo: dict[str, float] = {}
         """The last servoJ timing parameters (t, lookahead_time, gain), as the script keeps them."""
+        self._servo_window: ServoLookahead | None = None
         self._by_command: dict[int, Callable[[], None]] = {
             MOVEJ: self._move_j,
             SPEEDJ: lambda: self.plant.command_velocity(self._doubles(0, 6)),
@@ -72,6 +75,7 @@ class ControlScript:
     def load(self, program: str) -> None:
         """A new program replaces the running one and starts PLAYING (as on the controller)."""
         self.offsets = parse_offsets(program)
+        self._servo_window = None
         self._executing = False
         self._blocking_until = None
         self.status.runtime_state = RuntimeState.PLAYING
@@ -113,6 +117,8 @@ class ControlScript:
             self._write_out(0, DONE)
 
     def _process(self, command: int) -> None:
+        if command != SERVOJ:
+            self._servo_window = None  # after any other motion servoj starts afresh
         handler = self._by_command.get(command)
         if handler is None:
             print(f"ur_controller: rtde_control command {command} not emulated", file=sys.stderr)
@@ -123,7 +129,12 @@ class ControlScript:
         # Registers 6/7 (speed, acceleration) are unused by servoj, as on the real controller.
         t, lookahead, gain = self._doubles(8, 3)
         self.servo = {"t": t, "lookahead_time": lookahead, "gain": gain}
-        self.plant.command_position(self._doubles(0, 6))
+        # servoj follows the newest target the client sent, smoothed over lookahead_time as
+        # the controller does: the client's 500 Hz and ours alias (a cycle with no new target,
+        # then one with two), and followed raw, that stop-and-double-step would jerk the arm.
+        if self._servo_window is None:
+            self._servo_window = ServoLookahead(lookahead, self.cycle_s)
+        self.plant.command_position(self._servo_window.smoothed(self._doubles(0, 6)))
 
     def _move_j(self) -> None:
         target = self._doubles(0, 6)
@@ -142,3 +153,20 @@ class ControlScript:
 def _arrived(plant: Plant, target: list[float]) -> bool:
     q = plant.state().q
     return max(abs(a - b) for a, b in zip(q, target, strict=True)) < ARRIVED_RAD
+
+
+class ServoLookahead:
+    """servoj's lookahead: the plant follows the mean of the targets of the last
+    ``lookahead_time`` (one per cycle, a repeated target included). A missed or doubled
+    target moves that mean by one cycle's step divided by the window, not by a whole step;
+    the price is a lag of half the lookahead, as on the controller."""
+
+    def __init__(self, lookahead_s: float, cycle_s: float) -> None:
+        self._size = max(1, round(min(max(lookahead_s, 0.03), 0.2) / cycle_s))
+        self._targets: list[list[float]] = []
+
+    def smoothed(self, target: list[float]) -> list[float]:
+        if not self._targets:
+            self._targets = [target] * self._size
+        self._targets = [*self._targets[1:], target]
+        return [sum(column) / self._size for column in zip(*self._targets, strict=True)]

@@ -28,6 +28,7 @@ DRIVER_MANIFESTS = ["sim-ur5e-rtde.toml", "sim-dynamixel.toml", "sim-canopen.tom
 def test_a_full_cycle_runs_through_the_driver(tmp_path: Path, name: str) -> None:
     summary = run(run_live(manifest(name, cycles=1), tmp_path))
     assert summary["cycles"]["attempted"] == 1
+    assert summary["cycles"]["verified"] == 1  # the driver's gripper grasped the peg
     assert summary["driver"]["faults"] == "none"
     assert summary["link"]["chunks_admitted"] > 5
     assert replays_identically(run_dir(tmp_path))
