@@ -23,10 +23,9 @@ from drivers.base import ControlConfig
 from drivers.canopen402 import bringup
 from drivers.canopen402._sdk import Node402, PdoVariable
 from drivers.canopen402.tables import Index
-from drivers.canopen402.units import GripperScale
+from drivers.canopen402.units import GRIPPER_STROKE_M, GripperScale
 
-MAX_OPENING_M = 0.085
-"""Stroke of the cell's gripper (a 2F-85-class parallel gripper): commands are clipped to it."""
+MAX_OPENING_M = GRIPPER_STROKE_M
 NO_FOLLOWING_LIMIT = 0xFFFFFFFF
 """0x6065 value that switches following-error supervision off (CiA 402-2)."""
 

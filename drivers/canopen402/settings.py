@@ -7,7 +7,13 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from drivers.canopen402.units import GRIPPER_COUNTS_PER_M, GripperScale, JointScale
+from drivers.canopen402.units import (
+    GRIPPER_COUNTS_PER_M,
+    GRIPPER_STROKE_M,
+    INT32_MAX,
+    GripperScale,
+    JointScale,
+)
 from drivers.settings import settings_from_mapping
 
 
@@ -91,6 +97,10 @@ class CiA402Settings:
         if not (math.isfinite(self.gripper_counts_per_m) and self.gripper_counts_per_m > 0):
             raise ValueError(f"gripper_counts_per_m must be a positive number, got "
                              f"{self.gripper_counts_per_m}")
+        if GRIPPER_STROKE_M * self.gripper_counts_per_m > INT32_MAX:
+            raise ValueError(f"gripper_counts_per_m = {self.gripper_counts_per_m} puts the "
+                             f"{GRIPPER_STROKE_M} m stroke outside the drive's INTEGER32 "
+                             "position range")
 
     @property
     def drive_ids(self) -> tuple[int, ...]:

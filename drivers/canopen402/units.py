@@ -45,6 +45,8 @@ class JointScale:
         return self.direction * per_mille * rated_torque_mnm * 1e-6 * self.gear_ratio
 
 
+GRIPPER_STROKE_M = 0.085
+"""Stroke of the cell's gripper (a 2F-85-class parallel gripper): commands are clipped to it."""
 GRIPPER_COUNTS_PER_M = 1_000_000.0
 """One count per micrometre of opening (why: see ``CiA402Settings.gripper_counts_per_m``)."""
 

@@ -87,14 +87,25 @@ class DynamixelBus(BusTransactions):
             raise NotConnected(self.device, f"connect to {self.settings.port} was abandoned")
 
     def prepare_position_mode(self) -> None:
-        """Torque off, then position mode (Operating Mode is EEPROM: locked while torque is on)."""
+        """Torque off, then position mode (Operating Mode is EEPROM: locked while torque is on).
+
+        The gripper goes to current-based position mode with the squeeze current as its Goal
+        Current: closed on a part, it stalls short of its goal, and in plain position mode it
+        would push with all it has until its overload alert switches the torque off (part
+        dropped, arm faulted). Goal Current is RAM: written after the mode, every connect.
+        """
         with self._link_errors():
             for dxl_id in self.settings.all_ids:
                 self._write_byte(dxl_id, tables.TORQUE_ENABLE, 0)
             for dxl_id in self.settings.all_ids:
-                if self._read_byte(dxl_id, tables.OPERATING_MODE) != tables.OperatingMode.POSITION:
+                mode = (tables.OperatingMode.CURRENT_BASED_POSITION
+                        if dxl_id == self.settings.gripper_id else tables.OperatingMode.POSITION)
+                if self._read_byte(dxl_id, tables.OPERATING_MODE) != mode:
                     # Written only when different: EEPROM has a limited number of write cycles.
-                    self._write_byte(dxl_id, tables.OPERATING_MODE, tables.OperatingMode.POSITION)
+                    self._write_byte(dxl_id, tables.OPERATING_MODE, mode)
+            if self.settings.gripper_id is not None:
+                self._write_item(self.settings.gripper_id, tables.GOAL_CURRENT,
+                                 self.settings.gripper_current_units)
 
     def hold_here(self) -> RawState:
         """Make the present position every joint's goal; returns the state it read.

@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
-from drivers.dynamixel.tables import POSITION_MODE_TICKS
+from drivers.dynamixel.tables import GOAL_CURRENT_MAX_UNITS, POSITION_MODE_TICKS
 
 SIX_SERVO_ARM_IDS = (1, 2, 3, 4, 5, 6)
 GRIPPER_MAX_OPENING_M = 0.085
@@ -46,6 +47,11 @@ class DynamixelSettings:
     gripper_closed_ticks: int = 3072
     """Goal/Present Position at opening 0.0 m (pads touching); may be below the open ticks for a
     servo that closes the other way round. Openings map linearly between the two."""
+    gripper_current_ma: float = 300.0
+    """Current the gripper squeezes with: its Goal Current in current-based position mode. A
+    grasp stalls the fingers short of their goal and draws this much, not the Current Limit
+    (an XM430 at 300 mA squeezes with roughly a quarter of its stall torque). Set it for the
+    part: too little lets it slip, too much crushes it or trips the overload alert."""
 
     def __post_init__(self) -> None:
         if not self.port:
@@ -68,6 +74,12 @@ class DynamixelSettings:
         self._check_gripper()
 
     @property
+    def gripper_current_units(self) -> int:
+        """``gripper_current_ma`` in Goal Current units (``current_unit_ma`` each)."""
+        return round(self.gripper_current_ma / self.current_unit_ma) if math.isfinite(
+            self.gripper_current_ma) else 0
+
+    @property
     def all_ids(self) -> tuple[int, ...]:
         """Every servo on the bus: the joints in joint order, then the gripper if there is one."""
         return self.ids if self.gripper_id is None else (*self.ids, self.gripper_id)
@@ -84,6 +96,12 @@ class DynamixelSettings:
             if not low <= getattr(self, key) <= high:
                 raise ValueError(f"{key}: must be a position-mode tick in {low}..{high}, "
                                  f"got {getattr(self, key)}")
+        if not (math.isfinite(self.gripper_current_ma) and 0 < self.gripper_current_units
+                <= GOAL_CURRENT_MAX_UNITS):
+            raise ValueError(f"gripper_current_ma: must be above 0 and at most "
+                             f"{GOAL_CURRENT_MAX_UNITS * self.current_unit_ma:.0f} mA "
+                             f"({GOAL_CURRENT_MAX_UNITS} units of {self.current_unit_ma} mA), "
+                             f"got {self.gripper_current_ma}")
         if self.gripper_open_ticks == self.gripper_closed_ticks:
             raise ValueError(f"gripper_closed_ticks: equals gripper_open_ticks "
                              f"({self.gripper_open_ticks}); open and closed need distinct ticks")

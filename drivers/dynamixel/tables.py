@@ -27,6 +27,10 @@ MAX_POSITION_LIMIT = Register("Max Position Limit", 48, 4)
 MIN_POSITION_LIMIT = Register("Min Position Limit", 52, 4)
 TORQUE_ENABLE = Register("Torque Enable", 64, 1)
 HARDWARE_ERROR_STATUS = Register("Hardware Error Status", 70, 1)
+GOAL_CURRENT = Register("Goal Current", 102, 2, signed=True)
+GOAL_CURRENT_MAX_UNITS = 2047
+"""The largest Current Limit of the X series (XM540); each servo refuses a Goal Current above
+its own Current Limit (1193 on an XM430-W350) with a data-limit error."""
 GOAL_POSITION = Register("Goal Position", 116, 4, signed=True)
 PRESENT_CURRENT = Register("Present Current", 126, 2, signed=True)
 PRESENT_VELOCITY = Register("Present Velocity", 128, 4, signed=True)

@@ -75,8 +75,16 @@ class BusTransactions:
         return value
 
     def _write_byte(self, dxl_id: int, register: tables.Register, value: int) -> None:
+        self._write_item(dxl_id, register, value)
+
+    def _write_item(self, dxl_id: int, register: tables.Register, value: int) -> None:
+        """Write one 1- or 2-byte item (a negative value as two's complement) and check it."""
+        write_item = {1: self._handler.write1ByteTxRx, 2: self._handler.write2ByteTxRx}[
+            register.size]
+        raw = value % (1 << (8 * register.size))
+
         def write() -> tuple[int, int, int]:
-            return (0, *self._handler.write1ByteTxRx(self._port, dxl_id, register.address, value))
+            return (0, *write_item(self._port, dxl_id, register.address, raw))
 
         _, result, error = self._with_retries(write)
         action = f"writing {value} to {register.name}"

@@ -59,6 +59,8 @@ class ReceiveInterface(Protocol):
 
     def getStandardAnalogInput1(self) -> float: ...
 
+    def getActualDigitalOutputBits(self) -> int: ...
+
 
 class ControlInterface(Protocol):
     """``rtde_control.RTDEControlInterface`` (uploads and talks to the ``rtde_control`` script)."""

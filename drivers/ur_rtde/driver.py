@@ -208,13 +208,14 @@ class URRTDEDriver:
         await self._run(self._link.open, timeout_s=2 * settings.connect_timeout_s)
 
     async def _grip(self, opening: float | None) -> None:
-        """Switch the gripper when the commanded state changes: one IO package per change, so a
-        held command costs nothing per tick (and the controller's output is not spammed)."""
+        """Switch the gripper when the commanded state changes, or when the controller's
+        readback does not confirm it: one IO package per change, so a held command costs
+        nothing per tick, yet a write the IO session lost without an error is sent again."""
         link = self._link_or_raise()
         if opening is None or link.gripper is None:
             return
         closed = link.gripper.closes(opening)
-        if closed is not link.gripper_closed:
+        if link.gripper_needs_write(closed):
             await self._run(link.set_gripper, closed)
 
     def _gripper_opening(self, snapshot: Snapshot) -> float | None:

@@ -45,6 +45,10 @@ class GripperWiring:
         """The ur_rtde receive method that reads the feedback input."""
         return tables.GRIPPER_FEEDBACK_INPUTS[self.feedback]
 
+    def output_high(self, digital_output_bits: int) -> bool:
+        """This gripper's tool output in ``actual_digital_output_bits`` (tool outputs: bit 16+)."""
+        return bool(digital_output_bits >> (tables.TOOL_OUTPUT_SHIFT + self.output) & 1)
+
     def closes(self, opening_m: float) -> bool:
         """Whether a commanded opening means "closed" (output high) for this binary gripper."""
         return opening_m < self.max_opening_m / 2

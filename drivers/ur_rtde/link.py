@@ -25,6 +25,8 @@ from drivers.ur_rtde.settings import URSettings
 SCRIPT_START_TIMEOUT_S = 1.0
 POLL_S = 0.0005
 IO_RENEW_ATTEMPTS, IO_RENEW_BACKOFF_S = 3, 0.05
+GRIPPER_CONFIRM_S = 0.1
+"""How long a written gripper output may take to show in actual_digital_output_bits."""
 
 
 class LinkDown(ConnectionError):
@@ -70,6 +72,9 @@ class Link:
         self.gripper = GripperWiring.from_settings(settings)
         self.gripper_closed: bool | None = None
         """The gripper output level last written (True = closed); None: not known."""
+        self.gripper_output_high: bool | None = None
+        """That output as the controller reports it, from the newest snapshot."""
+        self._gripper_written_ns = self._gripper_read_ns = 0
         self.mode = Mode.IDLE
         self._last_timestamp = -1.0
         self._last_change_ns = 0
@@ -94,11 +99,13 @@ class Link:
                                   f"{error}") from error
         self.mode = Mode.IDLE
         self.gripper_closed = None  # whatever was written before, the controller may differ
+        self.gripper_output_high = None
         self._last_change_ns = time.monotonic_ns()
 
     def _open_receive(self) -> None:
         if self.receive is None:
-            feedback = [self.gripper.feedback] if self.gripper else []
+            feedback = [self.gripper.feedback, "actual_digital_output_bits"] if (
+                self.gripper) else []
             self.receive = _sdk.open_receive(self.settings.host, self.settings.frequency_hz,
                                              tables.RECEIVE_VARIABLES + feedback)
         elif not self.receive.isConnected():
@@ -149,14 +156,14 @@ class Link:
         healthy = self._fresh()
         control, receive, io = self.control, self.receive, self.io
         self.control, self.receive, self.io = None, None, None
+        if io is not None:  # first: its disconnect waits for an answer, and "healthy" is now
+            release_io(io, healthy)
         if control is not None:
             _close(control, healthy, control.stopScript)
             del control  # destructor runs here, on the device thread, not on the event loop
         if receive is not None:
             _close(receive, healthy, lambda: None)
             del receive
-        if io is not None:
-            release_io(io, healthy)
 
     # -- reading ------------------------------------------------------------------------------
 
@@ -172,6 +179,10 @@ class Link:
             gripper_signal=getattr(receive, self.gripper.getter)() if self.gripper else None,
         )
         self._track_freshness(snapshot.timestamp, now)
+        if self.gripper is not None:
+            self.gripper_output_high = self.gripper.output_high(
+                receive.getActualDigitalOutputBits())
+            self._gripper_read_ns = now
         return snapshot
 
     @property
@@ -233,6 +244,17 @@ class Link:
         if not self._guarded(lambda: io.setToolDigitalOut(wiring.output, closed)):
             raise LinkDown("ur_rtde could not send the tool digital output")
         self.gripper_closed = closed
+        self._gripper_written_ns = time.monotonic_ns()
+
+    def gripper_needs_write(self, closed: bool) -> bool:
+        """A change of the commanded state, or a written state that a snapshot taken
+        ``GRIPPER_CONFIRM_S`` after the write still does not show (a lost write, or another
+        program switched the output): the output is written again then, at most that often."""
+        if closed is not self.gripper_closed:
+            return True
+        settled = self._gripper_read_ns - self._gripper_written_ns > GRIPPER_CONFIRM_S * 1e9
+        return settled and self.gripper_output_high is not None and (
+            self.gripper_output_high != closed)
 
     def program_running(self) -> bool:
         """The control session's own view, which is what ur_rtde checks before every command."""

@@ -83,6 +83,8 @@ RECEIVE_VARIABLES = [
 
 TOOL_DIGITAL_OUTPUTS = (0, 1)
 """Tool digital outputs of an e-Series tool flange (bits 16-17 of actual_digital_output_bits)."""
+TOOL_OUTPUT_SHIFT = 16
+"""Bit of tool digital output 0 in actual_digital_output_bits."""
 GRIPPER_FEEDBACK_INPUTS = {
     "standard_analog_input0": "getStandardAnalogInput0",
     "standard_analog_input1": "getStandardAnalogInput1",

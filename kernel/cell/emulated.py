@@ -35,8 +35,30 @@ def _ur(manifest: Manifest, plant: str) -> Launch:
     from stubs.ur_controller.launch import free_loopback_host
 
     host = str(manifest.emulator.get("host") or free_loopback_host())
-    return Launch("stubs.ur_controller", ("--host", host, "--plant", plant),
+    args = ("--host", host, "--plant", plant, *_ur_gripper_flags(manifest))
+    return Launch("stubs.ur_controller", args,
                   lambda ready: {"host": ready["host"]}, lambda ready: ready["host"])
+
+
+UR_EMULATED_GRIPPER = {"gripper_feedback_closed": 0.0, "gripper_feedback_open": 10.0,
+                       "gripper_max_opening_m": 0.085}
+"""The emulated gripper's signal: 0-10 V for 0-0.085 m. Only its wiring is configurable."""
+
+
+def _ur_gripper_flags(manifest: Manifest) -> tuple[str, ...]:
+    table = manifest.driver_settings
+    output = table.get("gripper_output")
+    if output not in (0, 1) or isinstance(output, bool):
+        return ()  # no gripper, or a mistake the driver's settings name
+    for key, value in UR_EMULATED_GRIPPER.items():
+        if key in table and table[key] != value:
+            raise ManifestError(f"{manifest.path}: driver.{key}: the emulated controller's "
+                                f"gripper reads {value} here; set it so, or drop the key")
+    feedback = {"standard_analog_input0": "0", "standard_analog_input1": "1"}.get(
+        str(table.get("gripper_feedback", "standard_analog_input0")))
+    if feedback is None:  # the driver's settings name this mistake
+        return ("--gripper-output", str(output))
+    return ("--gripper-output", str(output), "--gripper-feedback-input", feedback)
 
 
 def _dynamixel(manifest: Manifest, plant: str) -> Launch:

@@ -33,11 +33,13 @@ class Addr(IntEnum):
     ID = 7
     BAUD_RATE = 8
     OPERATING_MODE = 11
+    CURRENT_LIMIT = 38
     SHUTDOWN = 63
     MAX_POSITION_LIMIT = 48
     MIN_POSITION_LIMIT = 52
     TORQUE_ENABLE = 64
     HARDWARE_ERROR_STATUS = 70
+    GOAL_CURRENT = 102
     GOAL_POSITION = 116
     MOVING = 122
     PRESENT_CURRENT = 126
@@ -190,6 +192,11 @@ class ServoTable:
         mode_written = _touches(address, address + len(data), Addr.OPERATING_MODE, 1)
         if mode_written and data[Addr.OPERATING_MODE - address] not in OPERATING_MODES:
             return ErrorCode.DATA_RANGE
+        if _touches(address, address + len(data), Addr.GOAL_CURRENT, 2):
+            offset = Addr.GOAL_CURRENT - address
+            goal = int.from_bytes(data[offset:offset + 2], "little", signed=True)
+            if abs(goal) > self.get(Addr.CURRENT_LIMIT, 2):
+                return ErrorCode.DATA_LIMIT
         if _touches(address, address + len(data), Addr.GOAL_POSITION, 4):
             offset = Addr.GOAL_POSITION - address
             goal = int.from_bytes(data[offset:offset + 4], "little", signed=True)

@@ -24,6 +24,7 @@ from stubs.ur_controller.controller import (
     ControllerConfig,
     URController,
 )
+from stubs.ur_controller.io_board import GripperWiring
 
 EXIT_ADDRESS_IN_USE = 3
 EXIT_BAD_ARGUMENT = 2
@@ -66,6 +67,10 @@ def _arguments(argv: list[str] | None) -> argparse.Namespace:
                         help="URControl version the controller reports (default 5.11.1)")
     parser.add_argument("--control-port", type=int, default=0,
                         help="fault-control port (default: any free port)")
+    parser.add_argument("--gripper-output", type=int, choices=(0, 1), default=0,
+                        help="tool digital output the gripper closes on (default 0)")
+    parser.add_argument("--gripper-feedback-input", type=int, choices=(0, 1), default=0,
+                        help="standard analog input carrying its 0-10 V opening (default 0)")
     return parser.parse_args(argv)
 
 
@@ -75,7 +80,8 @@ def main(argv: list[str] | None = None) -> int:
     if plant.dof != 6:
         print(f"ur_controller: a UR arm has 6 joints, the plant has {plant.dof}", file=sys.stderr)
         return EXIT_BAD_ARGUMENT
-    controller = URController(ControllerConfig(args.host, args.version), plant)
+    wiring = GripperWiring(args.gripper_output, args.gripper_feedback_input)
+    controller = URController(ControllerConfig(args.host, args.version, wiring), plant)
     try:
         controller.start()
         handlers = {**controller.fault_handlers(),

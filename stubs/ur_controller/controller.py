@@ -17,13 +17,13 @@ import sys
 import threading
 import time
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from stubs.fault_control import Handler
 from stubs.plant.base import Plant
 from stubs.ur_controller.dashboard import serve_dashboard, serve_script_port
 from stubs.ur_controller.frame import Frame, take_frame
-from stubs.ur_controller.io_board import IOBoard
+from stubs.ur_controller.io_board import GripperWiring, IOBoard
 from stubs.ur_controller.listener import Listener
 from stubs.ur_controller.rtde_server import RTDESession, ServerContext
 from stubs.ur_controller.script import ControlScript
@@ -43,6 +43,8 @@ CB3_MAJOR = 3
 class ControllerConfig:
     host: str
     version: tuple[int, int, int, int] = (5, 11, 1, 108318)
+    gripper: GripperWiring = field(default_factory=GripperWiring)
+    """Where the cell's gripper is wired (tool output, feedback input)."""
 
     @property
     def cycle_hz(self) -> float:
@@ -56,7 +58,7 @@ class URController:
         self.plant = plant
         self.status = ControllerStatus()
         self.registers = RegisterBank()
-        self.io = IOBoard()
+        self.io = IOBoard(config.gripper)
         self.lock = threading.Lock()
         self.plant_lock = threading.Lock()
         """Held for every plant access (the cycle, the world port of the cell's evaluator)."""
@@ -133,7 +135,12 @@ class URController:
             "speed_scaling": lambda request: self._set_speed_scaling(float(request["value"])),
             "clear": lambda _: self._clear(),
             "io_state": lambda _: self._io_state(),
+            "lose_io_write": lambda request: self._lose_io_writes(int(request.get("count", 1))),
         }
+
+    def _lose_io_writes(self, count: int) -> None:
+        with self._locked():
+            self.io.lose_writes = count
 
     def _io_state(self) -> dict[str, object]:
         """Not a fault: what the outputs and the gripper really are (tests, no RTDE needed)."""
@@ -176,6 +183,7 @@ class URController:
     def _clear(self) -> None:
         with self._locked():
             self.status.recover()
+            self.io.lose_writes = 0
         self.stalled = False
         self.rtde.resume()
 

@@ -49,6 +49,9 @@ class IOBoard:
         self.outputs = dict.fromkeys(OUTPUT_BITS, 0)
         self.packages: Counter[str] = Counter()
         """How many client packages set each kind of output (tests check writes are rare)."""
+        self.lose_writes = 0
+        """Output packages still to be lost (the ``lose_io_write`` fault: what ur_rtde's IO
+        interface does to its first write after the controller dropped its session)."""
         # Boots with every output low and leaves the gripper as the plant has it.
         self._gripper_closed = False
 
@@ -56,6 +59,9 @@ class IOBoard:
         """One client data package: the masked output bits it carries (other fields are
         registers, which the register bank keeps)."""
         package = dict(zip(names, values, strict=True))
+        if self.lose_writes and any(name in package for name in OUTPUT_BITS):
+            self.lose_writes -= 1
+            return
         for name, width in OUTPUT_BITS.items():
             if name in package:
                 self.packages[name] += 1

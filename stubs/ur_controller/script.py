@@ -132,7 +132,7 @@ class ControlScript:
         # servoj follows the newest target the client sent, smoothed over lookahead_time as
         # the controller does: the client's 500 Hz and ours alias (a cycle with no new target,
         # then one with two), and followed raw, that stop-and-double-step would jerk the arm.
-        if self._servo_window is None:
+        if self._servo_window is None or self._servo_window.lookahead_s != lookahead:
             self._servo_window = ServoLookahead(lookahead, self.cycle_s)
         self.plant.command_position(self._servo_window.smoothed(self._doubles(0, 6)))
 
@@ -162,6 +162,7 @@ class ServoLookahead:
     the price is a lag of half the lookahead, as on the controller."""
 
     def __init__(self, lookahead_s: float, cycle_s: float) -> None:
+        self.lookahead_s = lookahead_s
         self._size = max(1, round(min(max(lookahead_s, 0.03), 0.2) / cycle_s))
         self._targets: list[list[float]] = []
 

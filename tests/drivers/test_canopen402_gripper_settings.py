@@ -47,6 +47,7 @@ def test_no_gripper_by_default_and_a_micrometre_per_count() -> None:
     ({"gripper_counts_per_m": float("nan")}, "gripper_counts_per_m must be a positive number"),
     ({"gripper_counts_per_m": float("inf")}, "gripper_counts_per_m must be a positive number"),
     ({"gripper_counts_per_m": "1e6"}, "canopen402.gripper_counts_per_m:"),
+    ({"gripper_counts_per_m": 1e12}, "stroke outside the drive's INTEGER32 position range"),
     ({"gripper_id": 7}, "canopen402.gripper_id: unknown key"),
 ])
 def test_bad_gripper_settings_name_the_key(change: dict[str, object], message: str) -> None:

@@ -169,8 +169,19 @@ async def test_bring_up_configures_the_gripper_and_aclose_releases_it(bus: BusEm
         dynamixel = driver.driver
         assert isinstance(dynamixel, DynamixelDriver) and dynamixel.bus is not None
         assert GRIPPER in dynamixel.bus.models
-    assert read_servo(bus.port, GRIPPER, 11, 1) == 3  # position mode
+    assert read_servo(bus.port, GRIPPER, 11, 1) == 5  # current-based position mode
+    assert read_servo(bus.port, GRIPPER, 102, 2) == round(300 / 2.69)  # squeeze: 300 mA
+    assert read_servo(bus.port, 1, 11, 1) == 3  # the joints: plain position mode
     assert read_servo(bus.port, GRIPPER, 64, 1) == 0  # torque off after aclose
+
+
+async def test_a_squeeze_current_above_the_servos_current_limit_refuses_to_start(
+        bus: BusEmulator) -> None:
+    driver = DynamixelDriver(settings(bus.port, gripper_current_ma=4000.0))  # XM430: 3209 mA
+    with pytest.raises(DeviceFault, match=r"servo id 7 .*refused writing 1487 to Goal Current"):
+        await driver.connect()
+        await driver.configure(CONTROL)
+    await driver.aclose()
 
 
 async def test_a_driver_without_gripper_id_ignores_the_gripper(bus: BusEmulator) -> None:
@@ -272,6 +283,9 @@ async def test_tick_flags_and_settings_agree_on_a_reversed_gripper() -> None:
     ({"gripper_id": 7, "gripper_closed_ticks": 2048}, "gripper_closed_ticks"),
     ({"gripper_id": 7, "gripper_open_ticks": 20.5}, "gripper_open_ticks"),
     ({"gripper": 7}, "gripper"),
+    ({"gripper_id": 7, "gripper_current_ma": 0.0}, "gripper_current_ma"),
+    ({"gripper_id": 7, "gripper_current_ma": 6000.0}, "gripper_current_ma"),
+    ({"gripper_id": 7, "gripper_current_ma": float("nan")}, "gripper_current_ma"),
 ])
 def test_bad_gripper_settings_are_refused_naming_the_key(table: dict[str, Any], key: str) -> None:
     with pytest.raises(SettingsError, match=rf"(\.{key}:|: {key}:)"):

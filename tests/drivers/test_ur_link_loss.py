@@ -48,8 +48,10 @@ def emulator() -> Iterator[EmulatedController]:
     # tries to reconnect on its own (the path that crashed); the next read finds no link.
     ("data_stall", 3.5, ReasonCode.LINK_LOST, ("session closed",)),
     # Usually a read finds the session closed. If a servoJ races the EOF, ur_rtde itself tries
-    # to reconnect inside that call and fails on the refused port: still LINK_LOST.
-    ("disconnect", 0.0, ReasonCode.LINK_LOST, ("session closed", "Could not connect")),
+    # to reconnect inside that call and fails, on the refused port or on the dashboard answer
+    # it parses the PolyScope version from while the controller drops it: still LINK_LOST.
+    ("disconnect", 0.0, ReasonCode.LINK_LOST,
+     ("session closed", "Could not connect", "PolyScopeVersion::parse failed")),
 ])
 def test_the_client_process_survives_and_reports_the_reason(
     emulator: EmulatedController, fault: str, silent_s: float, reason: ReasonCode,

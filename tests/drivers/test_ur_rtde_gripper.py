@@ -46,11 +46,13 @@ def state_of(emulator: EmulatedController) -> dict[str, Any]:
 
 
 async def grip(driver: ManagedDriver, opening: float | None, seconds: float) -> None:
-    """Stream the measured position with ``opening`` at 500 Hz, as the cell's loop does."""
+    """Read, then stream the first position read with ``opening``, at 500 Hz, as the cell's
+    loop does."""
     q = (await driver.read()).q
     for _ in range(int(seconds / 0.002)):
         applied = await driver.write(Command(kind=CommandKind.POSITION, q=q, gripper=opening))
         assert applied.accepted, applied.reason
+        await driver.read()
         await asyncio.sleep(0.002)
 
 
@@ -143,3 +145,20 @@ async def test_a_non_finite_opening_is_refused_and_switches_nothing(
     assert not applied.accepted and applied.reason is ReasonCode.NONFINITE
     assert state_of(emulator)["output_packages"][TOOL] == before
     assert arm.state is DriverState.ACTIVE
+
+
+@on_shared_loop
+async def test_a_lost_output_write_is_sent_again_once_the_readback_disagrees(
+    arm: ManagedDriver, emulator: EmulatedController,
+) -> None:
+    """ur_rtde's IO interface loses its first write after the controller dropped its session,
+    without an error: the driver checks actual_digital_output_bits and writes once more."""
+    before = state_of(emulator)["output_packages"][TOOL]
+    inject((emulator.host, int(emulator.info["control_port"])), "lose_io_write", count=1)
+    await grip(arm, CLOSED, 0.6)
+    truth = state_of(emulator)
+    assert truth["digital_output_bits"] & TOOL_OUTPUT_0
+    assert truth["gripper_m"] < 0.005
+    assert truth["output_packages"][TOOL] == before + 1  # the lost one is not counted
+    await grip(arm, CLOSED, 0.3)  # confirmed now: nothing more is written
+    assert state_of(emulator)["output_packages"][TOOL] == before + 1

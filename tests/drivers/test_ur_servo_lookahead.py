@@ -44,11 +44,6 @@ def test_an_aliased_stream_keeps_its_speed_within_one_step_over_the_window(
     assert np.all(np.abs(speed - STEP) <= STEP / 25 + 1e-12)
 
 
-def test_a_raw_stream_would_stop_and_double_step_at_a_beat() -> None:
-    raw = np.diff(_aliased_ramp([100], 200))
-    assert raw.min() == pytest.approx(0.0) and raw.max() == pytest.approx(2 * STEP)
-
-
 def test_a_target_held_for_the_whole_window_is_reached_exactly() -> None:
     lookahead = ServoLookahead(0.05, CYCLE_S)
     followed = _follow(lookahead, [0.0] * 5 + [0.3] * 25)
