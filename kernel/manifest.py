@@ -64,6 +64,20 @@ class CellSettings:
     only: a manifest that drives a real device must set it false (a human recovers)."""
 
 
+class PlantKind(StrEnum):
+    MUJOCO = "mujoco"
+    KINEMATIC = "kinematic"
+
+
+@dataclass(frozen=True, slots=True)
+class EmulatorSettings:
+    """``[emulator]``, checked when the manifest is read (the cell reads it as a table)."""
+
+    launch: bool = True
+    plant: PlantKind = PlantKind.MUJOCO
+    host: str = ""
+
+
 @dataclass(frozen=True, slots=True)
 class PolicySettings:
     launch: bool = True
@@ -123,7 +137,7 @@ def load_manifest(path: str | Path) -> Manifest:
     return Manifest(
         name=str(doc.get("name", path.stem)), path=path, core=core, sections=sections,
         driver_name=str(driver.pop("name")), driver_settings=driver,
-        emulator=dict(_table(doc, "emulator", where)),
+        emulator=_emulator_table(doc, where),
         cell=_settings(CellSettings, doc, "cell", where),
         policy=_settings(PolicySettings, doc, "policy", where),
         journal=_settings(JournalSettings, doc, "journal", where),
@@ -161,6 +175,12 @@ def _table(doc: Mapping[str, Any], key: str, where: Where) -> Mapping[str, Any]:
     if not isinstance(value, dict):
         raise where.at(key).error("must be a table")
     return value
+
+
+def _emulator_table(doc: Mapping[str, Any], where: Where) -> dict[str, Any]:
+    """The ``[emulator]`` table as written, once its keys and values are known to be valid."""
+    _settings(EmulatorSettings, doc, "emulator", where)
+    return dict(_table(doc, "emulator", where))
 
 
 def _settings(cls: type, doc: Mapping[str, Any], key: str, where: Where) -> Any:

@@ -29,6 +29,10 @@ def _die_with_parent() -> None:
     libc.prctl(_PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0)
 
 
+class EmulatorStartError(RuntimeError):
+    """The emulator exited, or never said READY; its own message went to stderr."""
+
+
 class EmulatorProcess:
     def __init__(self, module: str, *args: str, ready_timeout_s: float = 20.0) -> None:
         self.command = [sys.executable, "-m", module, *args]
@@ -88,4 +92,5 @@ class EmulatorProcess:
                 break
         code = self._proc.poll() if self._proc else None
         self.stop()
-        raise RuntimeError(f"emulator {' '.join(self.command)} not ready (exit code {code})")
+        raise EmulatorStartError(f"emulator {' '.join(self.command)} not ready (exit code "
+                                 f"{code})")

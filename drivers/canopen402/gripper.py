@@ -11,6 +11,10 @@ opening, :class:`~drivers.canopen402.units.GripperScale`) and its own rules for 
   squeeze, and the part could slip out), an opening one stops where it is;
 - STOP does not quick-stop it (see ``keep``), and its following error is not supervised, since
   a grasp holds the fingers off their target for as long as it holds the part.
+- deactivate and aclose disable it with the joints: de-energised is every drive's safe state
+  when the runtime lets go of the arm, and a grasp outlasts that only on a self-locking
+  gripper. activate starts from where the fingers are (target := actual), so a grasp held
+  across deactivate and activate squeezes again only once a command closes it.
 
 ``configure`` blocks (SDO, device thread); :class:`Gripper` only touches PDO buffers.
 """

@@ -10,6 +10,8 @@ control-table counts, not radians. Errors come out as driver errors the lifecycl
 An optional gripper servo (``gripper_id``) is one more servo on the same bus: it is pinged,
 configured, read and released with the joints, and its goal rides in the joints' sync write,
 but only when a command asks for it: holding the arm never touches the gripper's goal.
+Closing the bus switches its torque off with the joints' (a servo's safe state when the runtime
+lets go of the arm): a grasp outlasts that only if the gripper's gearing holds it.
 """
 
 from __future__ import annotations

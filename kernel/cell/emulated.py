@@ -15,11 +15,11 @@ from dataclasses import dataclass
 from typing import Any
 
 from drivers import registry
-from drivers.base import Driver
+from drivers.base import Driver, DriverInitError
 from drivers.settings import SettingsError
 from kernel.manifest import Manifest, ManifestError
 from stubs.fault_control import inject
-from stubs.process import EmulatorProcess
+from stubs.process import EmulatorProcess, EmulatorStartError
 
 
 @dataclass(frozen=True, slots=True)
@@ -96,6 +96,13 @@ def _canopen(manifest: Manifest, plant: str) -> Launch:
                                  "udp_port": ready["port"]}, lambda _: "127.0.0.1")
 
 
+ADDRESS_STAND_INS: dict[str, dict[str, Any]] = {
+    "ur_rtde": {"host": "127.0.0.1"},
+    "dynamixel": {"port": "/dev/null"},
+    "canopen402": {"interface": "udp_multicast", "channel": "239.0.0.1"},
+}
+"""What each launcher fills in from the emulator's READY line, to check the rest beforehand."""
+
 LAUNCHERS: dict[str, Callable[[Manifest, str], Launch]] = {
     "ur_rtde": _ur,
     "dynamixel": _dynamixel,
@@ -143,9 +150,17 @@ class EmulatorWorld:
         if launcher is None:
             raise ManifestError(f"{manifest.path}: driver.name: no emulator for "
                                 f"{manifest.driver_name!r} (known: sim, {', '.join(LAUNCHERS)})")
+        # Settings first, with stand-ins for the emulator's address: a mistake is named by key
+        # before any process starts (the emulator would refuse some of them less clearly).
+        driver_from_manifest(manifest, {**ADDRESS_STAND_INS.get(manifest.driver_name, {}),
+                                        **manifest.driver_settings})
         plant = str(manifest.emulator.get("plant", "mujoco"))
         launch = launcher(manifest, plant)
-        self.process = EmulatorProcess(launch.module, *launch.args).start()
+        try:
+            self.process = EmulatorProcess(launch.module, *launch.args).start()
+        except EmulatorStartError as error:
+            raise DriverInitError(manifest.driver_name, f"{error}; its own message is above"
+                                  ) from None
         ready = self.process.info
         port = ready.get("control_port", ready.get("fault_port"))
         self.control = (launch.control_host(ready), int(port))

@@ -33,6 +33,9 @@ def _run(tmp_path: Path, text: str, capsys: pytest.CaptureFixture[str]) -> tuple
     (("control_period_ms = 2", "control_period_ms = 1e-9"), "timing.control_period_ms"),
     (("clock_uncertainty_ms = ", "clock_uncertainty_ms = 1e303 #"),
      "timing.clock_uncertainty_ms"),
+    (("[policy]", '[emulator]\nplant = "clay"\n\n[policy]'), "emulator.plant: unknown value"),
+    (("[policy]", "[emulator]\nlaunch = 0\n\n[policy]"), "emulator.launch: expected bool"),
+    (("[policy]", "[emulator]\nplnat = 1\n\n[policy]"), "emulator.plnat: unknown key"),
 ])
 def test_bad_manifest_exits_2_naming_the_key(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], change: tuple[str, str], needle: str
@@ -60,6 +63,35 @@ def test_real_device_unreachable_exits_2(tmp_path: Path,
     code, err = _run(tmp_path, text, capsys)
     assert code == 2
     assert "127.0.0.9" in err and "check" in err
+
+
+@pytest.mark.parametrize(("manifest", "change", "needle"), [
+    ("sim-canopen.toml", ("gripper_node = 7", "gripper_node = 3"),
+     "driver: gripper_node 3 is also in node_ids"),
+    ("sim-dynamixel.toml", ("gripper_id = 7", "gripper_id = 7\ngripper_current_ma = 9e3"),
+     "driver: gripper_current_ma"),
+    ("sim-ur5e-rtde.toml", ("gripper_feedback_open = 10.0", "gripper_feedback_open = 5.0"),
+     "driver.gripper_feedback_open"),
+])
+def test_a_driver_setting_is_checked_before_its_emulator_starts(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], manifest: str, change: tuple[str, str],
+    needle: str,
+) -> None:
+    text = (MANIFESTS / manifest).read_text()
+    assert change[0] in text
+    code, err = _run(tmp_path, text.replace(change[0], change[1], 1), capsys)
+    assert code == 2 and needle in err and "Traceback" not in err
+
+
+def test_an_emulator_that_does_not_start_exits_2(
+    tmp_path: Path, capfd: pytest.CaptureFixture[str]
+) -> None:
+    text = (MANIFESTS / "sim-ur5e-rtde.toml").read_text()
+    text = text.replace('plant = "mujoco"', 'plant = "mujoco"\nhost = "10.1.2.3"', 1)
+    code, err = _run(tmp_path, text, capfd)
+    assert code == 2
+    assert "cannot start the device" in err and "stubs.ur_controller" in err
+    assert "not a loopback address" in err  # the emulator's own message, above
 
 
 def test_simulated_operator_is_refused_on_a_real_device(

@@ -35,7 +35,10 @@ def harness(emulator: EmulatedController) -> Harness:
         await asyncio.sleep(seconds)
 
     return Harness(
-        make_driver=lambda: URRTDEDriver(URSettings(host=emulator.host), name="ur5e"),
+        # A call deadline for a loaded 2-core test machine, not a robot PC: under the full
+        # suite a plain read once took over the default 0.5 s. Faults here never hang a call.
+        make_driver=lambda: URRTDEDriver(URSettings(host=emulator.host, call_timeout_s=2.0),
+                                         name="ur5e"),
         control=ControlConfig(dof=6, period_ns=PERIOD_NS, q_lower=(-6.28,) * 6,
                               q_upper=(6.28,) * 6, v_max=(3.14,) * 6),
         inject=emulator.inject,
