@@ -16,7 +16,7 @@ from assurance.envelope import Chunk, ReplacementPolicy
 from assurance.gates import Timing
 from assurance.limits import JointLimits
 from assurance.projection import Projection, Reference, project
-from assurance.queue import ActionQueue, Segment
+from assurance.queue import ActionQueue, Row, Segment
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -50,6 +50,9 @@ class MergeInputs:
     blend_allowed: bool
     hold_q: np.ndarray
     """Where the robot is being held (or measured) if no queued row precedes the chunk."""
+    last_setpoint: Row | None = None
+    """The row the last tick sent, if it sent one: precedes the chunk when the queue has no
+    row before it any more (purged by a new epoch), so the new rows continue its motion."""
 
 
 def plan_merge(queue: ActionQueue, inputs: MergeInputs, limits: JointLimits) -> MergePlan:
@@ -74,7 +77,7 @@ def plan_merge(queue: ActionQueue, inputs: MergeInputs, limits: JointLimits) -> 
             rows, blended = _blend(queue, rows, first_due, dt)
     rows, first_due = rows[skip:], first_due + skip * dt
     displaced = _rows_from(queue, cut_at) if cut_at is not None else 0
-    reference = _reference(queue, first_due, dt, inputs.hold_q, cut_at)
+    reference = _reference(queue, first_due, dt, inputs, cut_at)
     projection = project(rows, reference, dt * 1e-9, limits) if rows.shape[0] else _empty(rows)
     segment = _segment(inputs, projection, reference, first_due, dt, timing.trim + skip)
     return MergePlan(segment, policy, cut_at, displaced, blended, projection, older, timing.trim)
@@ -96,21 +99,29 @@ def _blend(
 
 
 def _reference(
-    queue: ActionQueue, first_due: int, dt: int, hold_q: np.ndarray, cut_at: int | None
+    queue: ActionQueue, first_due: int, dt: int, inputs: MergeInputs, cut_at: int | None
 ) -> Reference:
     """The setpoint the first new row follows.
 
     The queued row before it, moving, if the two are contiguous. After a gap the queue runs dry
     first and the robot comes to rest where that row left it, so the reference is that row at
-    rest. With nothing queued before it, it is the current hold (or the measured state).
+    rest. With nothing queued before it, it is the setpoint the last tick sent (the queue was
+    purged under a moving arm), contiguous, or else the current hold (or the measured state).
     """
     before = queue.predecessor(first_due if cut_at is None else min(first_due, cut_at))
+    last = inputs.last_setpoint
+    if before is None and last is not None and _contiguous(last, first_due, dt):
+        before = last
     if before is None:
-        return Reference(hold_q, np.zeros_like(hold_q))
+        return Reference(inputs.hold_q, np.zeros_like(inputs.hold_q))
     seg = before.segment
-    if before.due + seg.dt >= first_due and before.due >= first_due - 2 * dt:
+    if _contiguous(before, first_due, dt):
         return Reference(before.q, before.segment.step_into(before.row) * (dt / seg.dt))
     return Reference(before.q, np.zeros_like(before.q))
+
+
+def _contiguous(before: Row, first_due: int, dt: int) -> bool:
+    return before.due + before.segment.dt >= first_due and before.due >= first_due - 2 * dt
 
 
 def _rows_from(queue: ActionQueue, t: int) -> int:

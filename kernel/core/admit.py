@@ -147,7 +147,7 @@ def _plan(state: CoreState, chunk: Chunk, timing: Timing, t_obs: int | None) -> 
     hold = state.hold_q if state.hold_q is not None else state.hold_target()
     inputs = MergeInputs(
         chunk=chunk, timing=timing, t_obs=int(t_obs or 0), epoch=state.epoch,
-        blend_allowed=state.card.policy.blend, hold_q=hold,
+        blend_allowed=state.card.policy.blend, hold_q=hold, last_setpoint=state.last_setpoint,
     )
     return plan_merge(state.queue, inputs, state.config.limits)
 

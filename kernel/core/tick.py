@@ -43,6 +43,8 @@ def tick(state: CoreState) -> TickCommand:
     row = _row_in_force(state) if state.fallback.mode is Mode.RUNNING else None
     decision = _decide(state, row)
     _track_hold(state, decision)
+    policy_setpoint = decision.command is Command.SETPOINT and decision.owner is Owner.POLICY
+    state.last_setpoint = row if policy_setpoint else None
     _log(state, decision)
     _maybe_request(state)
     return decision
