@@ -40,25 +40,24 @@ def _ur(manifest: Manifest, plant: str) -> Launch:
                   lambda ready: {"host": ready["host"]}, lambda ready: ready["host"])
 
 
-UR_EMULATED_GRIPPER = {"gripper_feedback_closed": 0.0, "gripper_feedback_open": 10.0,
-                       "gripper_max_opening_m": 0.085}
-"""The emulated gripper's signal: 0-10 V for 0-0.085 m. Only its wiring is configurable."""
-
-
 def _ur_gripper_flags(manifest: Manifest) -> tuple[str, ...]:
+    """The gripper's wiring for the emulated controller (the settings were checked already);
+    its signal is fixed there (0-10 V over the stroke), so a manifest must agree with it."""
+    from stubs.ur_controller.io_board import GripperWiring
+
     table = manifest.driver_settings
-    output = table.get("gripper_output")
-    if output not in (0, 1) or isinstance(output, bool):
-        return ()  # no gripper, or a mistake the driver's settings name
-    for key, value in UR_EMULATED_GRIPPER.items():
+    if table.get("gripper_output") is None:
+        return ()
+    emulated = GripperWiring()
+    for key, value in (("gripper_feedback_closed", 0.0),
+                       ("gripper_feedback_open", emulated.full_scale_v),
+                       ("gripper_max_opening_m", emulated.max_opening_m)):
         if key in table and table[key] != value:
             raise ManifestError(f"{manifest.path}: driver.{key}: the emulated controller's "
                                 f"gripper reads {value} here; set it so, or drop the key")
-    feedback = {"standard_analog_input0": "0", "standard_analog_input1": "1"}.get(
-        str(table.get("gripper_feedback", "standard_analog_input0")))
-    if feedback is None:  # the driver's settings name this mistake
-        return ("--gripper-output", str(output))
-    return ("--gripper-output", str(output), "--gripper-feedback-input", feedback)
+    feedback = str(table.get("gripper_feedback", "standard_analog_input0"))
+    return ("--gripper-output", str(table["gripper_output"]),
+            "--gripper-feedback-input", feedback.removeprefix("standard_analog_input"))
 
 
 def _dynamixel(manifest: Manifest, plant: str) -> Launch:
