@@ -75,6 +75,11 @@ class CartesianMapper:
                        self.kinematics.upper)
         anchor = self.kinematics.forward(seed)
         targets = [self._target(anchor, action) for action in actions]
+        for row, target in enumerate(targets):
+            # Finite but huge actions overflow into a pose that is not one (exp3 of 1e200 rad
+            # is NaN): no IK solution, said as such, never an error out of admission.
+            if not (np.isfinite(target.position).all() and np.isfinite(target.rotation).all()):
+                return Mapped(None, f"action {row}: the TCP target is not a finite pose")
         if self.workspace is not None:
             for row, target in enumerate(targets):
                 if not self.workspace.contains(target.position):

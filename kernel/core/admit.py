@@ -73,7 +73,8 @@ def _evaluate(state: CoreState, chunk: Chunk, seen: Seen) -> None:
     if joints is None:
         reasons += [R.INFEASIBLE] if unmappable else []
     else:
-        drift, diverged = divergence_verdict(joints, _joint_context(ctx, joints), timing.first_due)
+        joint_ctx = ctx if joints is chunk else _joint_context(ctx, joints)
+        drift, diverged = divergence_verdict(joints, joint_ctx, timing.first_due)
         reasons += diverged
         plan = _plan(state, joints, timing, t_obs) if _can_plan(joints, timing, reasons) else None
     if plan is not None:
@@ -123,7 +124,8 @@ def _anchor(state: CoreState, chunk: Chunk) -> np.ndarray:
 
 
 def _joint_context(ctx: AdmissionContext, joints: Chunk) -> AdmissionContext:
-    """Gates that read actions see joint targets: a mapped chunk is as wide as the robot."""
+    """Gates that read actions see joint targets: a mapped chunk is as wide as the robot (a
+    joint-space chunk keeps its session's width, so a chunk of the wrong width stays one)."""
     width = joints.actions.shape[1]
     return ctx if width == ctx.action_dim else dataclasses.replace(ctx, action_dim=width)
 

@@ -72,6 +72,13 @@ def test_an_unreachable_target_has_no_solution(kin: ArmKinematics) -> None:
     assert mapped.joints is None and "action 1: no IK solution" in mapped.detail
 
 
+def test_a_finite_rotation_that_overflows_the_pose_has_no_solution(kin: ArmKinematics) -> None:
+    actions = np.array([[0.0, 0.0, -0.001, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1e200, 0.0, 0.0]])
+    mapped = CartesianMapper(kin, ARM, "m+rad").to_joints(actions, Q0)
+    assert mapped.joints is None and "action 1: the TCP target is not a finite pose" in (
+        mapped.detail)
+
+
 def test_the_mapper_refuses_a_robot_the_model_does_not_describe(kin: ArmKinematics) -> None:
     five = JointLimits(np.full(5, -1.0), np.full(5, 1.0), np.full(5, 1.0), np.full(5, 1.0))
     with pytest.raises(ValueError, match="5 arm joints"):
