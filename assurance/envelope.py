@@ -241,7 +241,7 @@ def decode_wire_chunk(frame: bytes, client_receive: int) -> Chunk | MalformedChu
     try:
         wire = _wire_decoder.decode(frame)
     except (msgspec.ValidationError, msgspec.DecodeError) as error:
-        return MalformedChunk(_salvage_wire_id(frame), _short(error))
+        return MalformedChunk(_salvage_wire_id(frame), short_error(error))
     try:
         return from_wire(wire, client_receive)
     except ChunkDecodeError as error:
@@ -303,7 +303,8 @@ def _salvage_wire_id(frame: bytes) -> str | None:
     return salvage_id(loose.get("chunk_id")) if isinstance(loose, dict) else None
 
 
-def _short(error: Exception) -> str:
+def short_error(error: Exception) -> str:
+    """An exception's text, cut to a log-friendly length."""
     text = str(error)
     return text if len(text) <= 160 else text[:157] + "..."
 

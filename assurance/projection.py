@@ -130,9 +130,13 @@ def project(
 ) -> Projection:
     """Project ``actions`` (H×D) into the limits, starting from ``reference``."""
     bounds = _bounds(limits, dt_s)
-    if not actions.size or _feasible(actions, reference, bounds):
+    if not actions.size:
+        return Projection(actions, np.zeros(0), True)
+    # The fast check first (arm-only rows); the violation matrix is built once, if at all.
+    fast = bounds.all_arm and _feasible(actions, reference, bounds)
+    violating = None if fast else _violations(actions, reference, bounds)
+    if violating is None or not violating.any():
         return Projection(actions, np.zeros(actions.shape[0]), True)
-    violating = _violations(actions, reference, bounds)
     projected = actions.copy()
     recoverable = True
     for joint in np.flatnonzero(violating.any(axis=0)):
@@ -169,15 +173,14 @@ def _reach(steps: np.ndarray, b: _Bounds) -> np.ndarray:
 
 
 def _feasible(actions: np.ndarray, ref: Reference, b: _Bounds) -> bool:
-    """One vectorized pass: does the proposal already satisfy every bound? (the common case)
+    """One vectorized pass: does an arm-only proposal already satisfy every bound? (the common
+    case)
 
     Each numpy call costs microseconds on small arrays, so the common case is checked with as
     few of them as possible: rates first, then positions against the inner band where no step
     can reach a limit; only a proposal near its limits pays for the braking check.
     """
     steps, changes = _steps(actions, ref)
-    if not b.all_arm:
-        return not _violations(actions, ref, b).any()
     if (np.abs(steps) > b.v_step + _EPS).any() or (np.abs(changes) > b.a_step + _EPS).any():
         return False
     if (actions > b.inner_lower).all() and (actions < b.inner_upper).all():

@@ -71,7 +71,7 @@ class PlantKind(StrEnum):
 
 @dataclass(frozen=True, slots=True)
 class EmulatorSettings:
-    """``[emulator]``, checked when the manifest is read (the cell reads it as a table)."""
+    """``[emulator]``: simulation only."""
 
     launch: bool = True
     plant: PlantKind = PlantKind.MUJOCO
@@ -106,7 +106,7 @@ class Manifest:
     """The scenario sections as written (the journal's header repeats them)."""
     driver_name: str
     driver_settings: dict[str, Any]
-    emulator: dict[str, Any]
+    emulator: EmulatorSettings
     cell: CellSettings = field(default_factory=CellSettings)
     policy: PolicySettings = field(default_factory=PolicySettings)
     journal: JournalSettings = field(default_factory=JournalSettings)
@@ -137,7 +137,7 @@ def load_manifest(path: str | Path) -> Manifest:
     return Manifest(
         name=str(doc.get("name", path.stem)), path=path, core=core, sections=sections,
         driver_name=str(driver.pop("name")), driver_settings=driver,
-        emulator=_emulator_table(doc, where),
+        emulator=_settings(EmulatorSettings, doc, "emulator", where),
         cell=_settings(CellSettings, doc, "cell", where),
         policy=_settings(PolicySettings, doc, "policy", where),
         journal=_settings(JournalSettings, doc, "journal", where),
@@ -175,12 +175,6 @@ def _table(doc: Mapping[str, Any], key: str, where: Where) -> Mapping[str, Any]:
     if not isinstance(value, dict):
         raise where.at(key).error("must be a table")
     return value
-
-
-def _emulator_table(doc: Mapping[str, Any], where: Where) -> dict[str, Any]:
-    """The ``[emulator]`` table as written, once its keys and values are known to be valid."""
-    _settings(EmulatorSettings, doc, "emulator", where)
-    return dict(_table(doc, "emulator", where))
 
 
 def _settings(cls: type, doc: Mapping[str, Any], key: str, where: Where) -> Any:

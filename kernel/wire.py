@@ -22,7 +22,7 @@ from enum import StrEnum
 import msgspec
 import numpy as np
 
-from assurance.envelope import ArrayPayload, WireChunk
+from assurance.envelope import ArrayPayload, WireChunk, short_error
 from assurance.handshake import ClientHello, HandshakeDecision, HandshakeOffer
 
 PROTOCOL_RANGE: tuple[int, int] = (1, 2)
@@ -202,7 +202,7 @@ def decode_frame(data: bytes | str) -> Frame:
     try:
         return _frame_decoder.decode(data)
     except (msgspec.DecodeError, msgspec.ValidationError) as error:
-        raise ProtocolViolation(f"undecodable frame: {_short(error)}") from error
+        raise ProtocolViolation(f"undecodable frame: {short_error(error)}") from error
 
 
 def message_type(frame: Frame, version: int | None = None) -> MessageType:
@@ -224,12 +224,8 @@ def decode_body(frame: Frame, kind: MessageType) -> Message:
     try:
         return decoder.decode(frame.body)
     except (msgspec.DecodeError, msgspec.ValidationError) as error:
-        raise ProtocolViolation(f"bad {kind} body: {_short(error)}") from error
+        raise ProtocolViolation(f"bad {kind} body: {short_error(error)}") from error
 
-
-def _short(error: Exception) -> str:
-    text = str(error)
-    return text if len(text) <= 160 else text[:157] + "..."
 
 
 # ---------------------------------------------------------------------------------------------

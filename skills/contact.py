@@ -85,10 +85,11 @@ class ContactOwner:
         if self.state in (ContactState.RETREATING, ContactState.RETREATED):
             return
         self._q = np.asarray(q, dtype=float).copy()
-        self._z = float(self.kin.forward(self._q).position[2])
+        position = self.kin.forward(self._q).position
+        self._z = float(position[2])
         if self.state in (ContactState.IDLE, ContactState.HOLDING):
             self._z_start = self._z + 0.02
-            self._xy = self.kin.forward(self._q).position[:2]
+            self._xy = position[:2]
         self.state = ContactState.RETREATING
 
     def step(self, now_ns: int, dt_s: float, force_norm: float,

@@ -102,7 +102,7 @@ class SetpointInterpolator:
         self._target_t_ns: int | None = None
         self._stream_interval_ns: int | None = None
         self._last_t_ns: int | None = None
-        self._arrived = np.full(self.limits.dof, qd is None)
+        self._arrived_at_reset: np.ndarray | None = np.full(self.limits.dof, qd is None)
         zeros = np.zeros(self.limits.dof)
         self._setpoint = Setpoint(0, position, zeros if velocity is None else velocity,
                                   zeros if acceleration is None else acceleration)
@@ -127,7 +127,7 @@ class SetpointInterpolator:
         if goal.tobytes() != self._target.tobytes():  # exact change, cheaper than array_equal
             self._new_stream_sample(goal, now_ns)
         elif self._stream_is_stale(now_ns):
-            self._settle(self._arrived)
+            self._settle(self._arrived())
         self._advance()
         return self._setpoint
 
@@ -193,6 +193,14 @@ class SetpointInterpolator:
         same_way = velocity * direction > 0
         return np.where(same_way, direction * np.minimum(np.abs(velocity), reachable), 0.0)
 
+    def _arrived(self) -> np.ndarray:
+        """Which joints have finished their profile (worked out only when a stream goes stale,
+        not every tick)."""
+        if self._arrived_at_reset is not None:
+            return self._arrived_at_reset
+        out = self._out
+        return np.array(out.trajectory.independent_min_durations) <= out.time + 1e-12
+
     def _advance(self) -> None:
         result = self._step()
         if self._out.new_calculation:
@@ -203,7 +211,7 @@ class SetpointInterpolator:
         if result not in OK_RESULTS:
             raise ValueError(f"interpolator could not plan from the current state ({result})")
         out = self._out
-        self._arrived = np.array(out.trajectory.independent_min_durations) <= out.time + 1e-12
+        self._arrived_at_reset = None
         self._setpoint = Setpoint(
             self._last_t_ns + self.config.control_period_ns, np.array(out.new_position),
             np.array(out.new_velocity), np.array(out.new_acceleration))

@@ -20,14 +20,12 @@ class PlannedMove:
     def __init__(self, trajectory: JointTrajectory) -> None:
         self.trajectory = trajectory
         self.elapsed_s = 0.0
+        self.target: np.ndarray = trajectory.sample(trajectory.duration).position
+        """Where the move ends (sampled once: it is read every tick while the move settles)."""
 
     def advance(self, dt_s: float) -> JointSample:
         self.elapsed_s += dt_s
         return self.trajectory.sample(self.elapsed_s)
-
-    @property
-    def target(self) -> np.ndarray:
-        return self.trajectory.sample(self.trajectory.duration).position
 
     @property
     def finished(self) -> bool:

@@ -110,15 +110,13 @@ def check_running(node: Node402, settings: CiA402Settings, active: bool,
             active (QUICK STOP ACTIVE is expected only after our own quick stop).
     """
     state = current_state(node)
-    who = settings.node_label(node.id)
     if state in FAULTY:
-        raise DeviceFault(settings.name, f"{who} reports {state} (statusword "
-                          f"0x{node.statusword:04X})", ReasonCode.CONTROLLER_FAULT)
-    allowed = {DriveState.OPERATION_ENABLED}
-    if stop_requested:
-        allowed.add(DriveState.QUICK_STOP_ACTIVE)
-    if active and state not in allowed:
+        raise DeviceFault(settings.name, f"{settings.node_label(node.id)} reports {state} "
+                          f"(statusword 0x{node.statusword:04X})", ReasonCode.CONTROLLER_FAULT)
+    expected = state is DriveState.OPERATION_ENABLED or (
+        stop_requested and state is DriveState.QUICK_STOP_ACTIVE)
+    if active and not expected:
         cause = " (a quick stop the drive made itself)" if (
             state is DriveState.QUICK_STOP_ACTIVE) else ""
-        raise DeviceFault(settings.name, f"{who} left OPERATION ENABLED: it reports "
-                          f"{state}{cause}", ReasonCode.CONTROLLER_FAULT)
+        raise DeviceFault(settings.name, f"{settings.node_label(node.id)} left OPERATION "
+                          f"ENABLED: it reports {state}{cause}", ReasonCode.CONTROLLER_FAULT)

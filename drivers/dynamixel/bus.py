@@ -98,13 +98,13 @@ class DynamixelBus(BusTransactions):
         """
         with self._link_errors():
             for dxl_id in self.settings.all_ids:
-                self._write_byte(dxl_id, tables.TORQUE_ENABLE, 0)
+                self._write_item(dxl_id, tables.TORQUE_ENABLE, 0)
             for dxl_id in self.settings.all_ids:
                 mode = (tables.OperatingMode.CURRENT_BASED_POSITION
                         if dxl_id == self.settings.gripper_id else tables.OperatingMode.POSITION)
                 if self._read_byte(dxl_id, tables.OPERATING_MODE) != mode:
                     # Written only when different: EEPROM has a limited number of write cycles.
-                    self._write_byte(dxl_id, tables.OPERATING_MODE, mode)
+                    self._write_item(dxl_id, tables.OPERATING_MODE, mode)
             if self.settings.gripper_id is not None:
                 self._write_item(self.settings.gripper_id, tables.GOAL_CURRENT,
                                  self.settings.gripper_current_units)
@@ -125,7 +125,7 @@ class DynamixelBus(BusTransactions):
         self.write_goals(state.position, state.gripper)
         with self._link_errors():
             for dxl_id in self.settings.all_ids:
-                self._write_byte(dxl_id, tables.TORQUE_ENABLE, 1)
+                self._write_item(dxl_id, tables.TORQUE_ENABLE, 1)
         return state
 
     def release(self) -> None:

@@ -76,8 +76,7 @@ class DynamixelSettings:
     @property
     def gripper_current_units(self) -> int:
         """``gripper_current_ma`` in Goal Current units (``current_unit_ma`` each)."""
-        return round(self.gripper_current_ma / self.current_unit_ma) if math.isfinite(
-            self.gripper_current_ma) else 0
+        return round(self.gripper_current_ma / self.current_unit_ma)
 
     @property
     def all_ids(self) -> tuple[int, ...]:

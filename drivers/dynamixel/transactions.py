@@ -26,6 +26,7 @@ from drivers.dynamixel._sdk import (
 )
 from drivers.dynamixel.port import TunedPortHandler
 from drivers.dynamixel.settings import DynamixelSettings
+from drivers.dynamixel.units import to_unsigned
 
 T = TypeVar("T")
 
@@ -74,14 +75,11 @@ class BusTransactions:
         self._check_status_errors({dxl_id: error})
         return value
 
-    def _write_byte(self, dxl_id: int, register: tables.Register, value: int) -> None:
-        self._write_item(dxl_id, register, value)
-
     def _write_item(self, dxl_id: int, register: tables.Register, value: int) -> None:
         """Write one 1- or 2-byte item (a negative value as two's complement) and check it."""
         write_item = {1: self._handler.write1ByteTxRx, 2: self._handler.write2ByteTxRx}[
             register.size]
-        raw = value % (1 << (8 * register.size))
+        raw = to_unsigned(value, register.size)
 
         def write() -> tuple[int, int, int]:
             return (0, *write_item(self._port, dxl_id, register.address, raw))

@@ -39,7 +39,6 @@ from drivers.base import (
 from drivers.device_thread import DeviceThread
 from drivers.settings import SettingsError
 from drivers.ur_rtde import tables
-from drivers.ur_rtde.gripper import GripperWiring
 from drivers.ur_rtde.link import Link, LinkDown, LinkStalled, Mode, Snapshot
 from drivers.ur_rtde.probe import ControllerUnreachable, probe_controller
 from drivers.ur_rtde.settings import URSettings
@@ -57,7 +56,6 @@ class URRTDEDriver:
         self.settings = settings
         self._thread: DeviceThread | None = None
         self._link: Link | None = None
-        self._gripper = GripperWiring.from_settings(settings)
         self._control: ControlConfig | None = None
         self._active = False
         self._seq = 0
@@ -126,7 +124,7 @@ class URRTDEDriver:
         return StateSample(
             seq=self._seq, t_mono_ns=snapshot.t_mono_ns, source=self.name, q=snapshot.q,
             qd=snapshot.qd, wrench=snapshot.tcp_force, speed_scaling=snapshot.speed_scaling,
-            gripper=self._gripper_opening(snapshot),
+            gripper=snapshot.gripper_opening,
         )
 
     async def write(self, command: Command) -> Applied:
@@ -217,11 +215,6 @@ class URRTDEDriver:
         closed = link.gripper.closes(opening)
         if link.gripper_needs_write(closed):
             await self._run(link.set_gripper, closed)
-
-    def _gripper_opening(self, snapshot: Snapshot) -> float | None:
-        if self._gripper is None or snapshot.gripper_signal is None:
-            return None
-        return self._gripper.opening_m(snapshot.gripper_signal)
 
     async def _read_checked(self, streaming: bool) -> Snapshot:
         snapshot = await self._run(self._link_or_raise().snapshot)

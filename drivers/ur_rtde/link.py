@@ -58,8 +58,8 @@ class Snapshot:
     runtime_state: int
     speed_scaling: float
     """Effective scaling: the trajectory limiter's speed_scaling times the speed slider."""
-    gripper_signal: float | None = None
-    """The gripper's feedback input as the controller reports it (None: no gripper)."""
+    gripper_opening: float | None = None
+    """The gripper's opening (m) from its feedback input (None: no gripper)."""
 
 
 class Link:
@@ -176,7 +176,8 @@ class Link:
             robot_mode=receive.getRobotMode(), safety_bits=receive.getSafetyStatusBits(),
             runtime_state=receive.getRuntimeState(),
             speed_scaling=receive.getSpeedScaling() * receive.getTargetSpeedFraction(),
-            gripper_signal=getattr(receive, self.gripper.getter)() if self.gripper else None,
+            gripper_opening=self.gripper.opening_m(getattr(receive, self.gripper.getter)())
+            if self.gripper else None,
         )
         self._track_freshness(snapshot.timestamp, now)
         if self.gripper is not None:

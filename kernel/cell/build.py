@@ -110,7 +110,7 @@ def _world(manifest: Manifest, period_ns: int) -> World:
             raise ManifestError(f"{manifest.path}: driver.{key}: unknown key (the sim driver "
                                 "takes no settings)")
         return SimWorld(period_ns)
-    if manifest.emulator.get("launch", True) is False:
+    if not manifest.emulator.launch:
         if manifest.cell.simulated_operator:
             raise ManifestError(f"{manifest.path}: cell.simulated_operator: must be false when "
                                 "driving a real device (only a human accepts recovery)")

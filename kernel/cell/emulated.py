@@ -34,7 +34,7 @@ class Launch:
 def _ur(manifest: Manifest, plant: str) -> Launch:
     from stubs.ur_controller.launch import free_loopback_host
 
-    host = str(manifest.emulator.get("host") or free_loopback_host())
+    host = manifest.emulator.host or free_loopback_host()
     args = ("--host", host, "--plant", plant, *_ur_gripper_flags(manifest))
     return Launch("stubs.ur_controller", args,
                   lambda ready: {"host": ready["host"]}, lambda ready: ready["host"])
@@ -153,7 +153,7 @@ class EmulatorWorld:
         # before any process starts (the emulator would refuse some of them less clearly).
         driver_from_manifest(manifest, {**ADDRESS_STAND_INS.get(manifest.driver_name, {}),
                                         **manifest.driver_settings})
-        plant = str(manifest.emulator.get("plant", "mujoco"))
+        plant = str(manifest.emulator.plant)
         launch = launcher(manifest, plant)
         try:
             self.process = EmulatorProcess(launch.module, *launch.args).start()

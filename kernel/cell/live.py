@@ -115,6 +115,8 @@ class _Loop:
 
     def _report(self) -> None:
         report_progress(self.context, self.progress)
+        if not self.service.enabled:
+            return  # no systemd to tell: do not build a status line every tick
         cell = self.context.cell
         status = (f"cycle {min(len(cell.controller.results) + 1, cell.controller.cycles)}: "
                   f"{cell.controller.runner.step} ({cell.core.state.fallback.mode})")

@@ -38,9 +38,9 @@ from kernel.shell.link_types import (
     LinkCounters,
     LinkState,
 )
+from kernel.summary import ADMITTED
 from kernel.wire import ByeReason, ClockSample, Frame, Message, MessageType, ProtocolViolation
 
-ADMITTED = frozenset({"accepted", "trimmed", "replaced", "blended"})
 _CLOSE_TOO_BIG = 1009
 
 

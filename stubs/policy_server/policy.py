@@ -88,11 +88,11 @@ class InsertionPolicy:
         vmax, a = self.max_speed, float(self.max_acceleration or 0.0)
         s, v, t = 0.0, float(np.clip(v0 @ direction / (direction @ direction), 0.0, vmax)), 0.0
         progress = np.empty(times.shape[0])
-        for row, until in enumerate(times):
+        for row, until in enumerate(times.tolist()):  # plain floats: numpy per scalar is slow
             while t < until - 1e-12:
                 h = min(_SUBSTEP_S, until - t)
-                wanted = min(vmax, np.sqrt(2.0 * a * max(reach - s, 0.0)))
-                v = v + float(np.clip(wanted - v, -a * h, a * h))
+                wanted = min(vmax, math.sqrt(2.0 * a * max(reach - s, 0.0)))
+                v = v + min(max(wanted - v, -a * h), a * h)
                 s, t = min(s + v * h, reach), t + h
             progress[row] = s
         return q0 + progress[:, None] * direction
