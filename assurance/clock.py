@@ -69,6 +69,9 @@ class ClockSync:
         return (self.round_trip_ns + 1) // 2
 
 
+_CLIENT_SYNC = ClockSync(CLIENT_DOMAIN, 0, 0)
+
+
 class ClockInvalid(Exception):
     """A time in a foreign clock domain that has no measured offset and round-trip bound."""
 
@@ -86,7 +89,7 @@ class ClockMap:
 
     def lookup(self, domain: str) -> ClockSync | None:
         if domain == CLIENT_DOMAIN:
-            return ClockSync(CLIENT_DOMAIN, 0, 0)
+            return _CLIENT_SYNC
         for sync in self.syncs:
             if sync.domain == domain:
                 return sync

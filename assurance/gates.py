@@ -9,8 +9,7 @@ it must run on the sequence that would actually be queued.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
+import msgspec
 import numpy as np
 
 from assurance.clock import ClockInvalid, ClockMap
@@ -22,9 +21,8 @@ from assurance.policy import PhasePolicy
 from assurance.reasons import ReasonCode as R
 
 
-@dataclass(frozen=True, slots=True, eq=False)
-class AdmissionContext:
-    """What the client knows at the instant a chunk is admitted."""
+class AdmissionContext(msgspec.Struct, frozen=True, eq=False):
+    """What the client knows at the instant a chunk is admitted (built once per chunk)."""
 
     t: int
     session: Session | None
@@ -102,8 +100,7 @@ def context_reasons(chunk: Chunk, ctx: AdmissionContext) -> list[R]:
     return reasons
 
 
-@dataclass(frozen=True, slots=True)
-class Timing:
+class Timing(msgspec.Struct, frozen=True):
     """The chunk's schedule on the client's clock, and what the time gates found."""
 
     reasons: tuple[R, ...]
@@ -124,17 +121,19 @@ def time_verdict(chunk: Chunk, ctx: AdmissionContext, t_obs: int | None) -> Timi
         offset, uncertainty = ctx.clock.translator(chunk.clock_domain)
     except ClockInvalid:
         return Timing((R.CLOCK_INVALID,))
-    first, dt = chunk.time("first_action_time"), chunk.time("action_dt")
+    times = chunk.times
+    first, dt = times["first_action_time"], times["action_dt"]
     if t_obs is None or first is None or dt is None:
         return Timing(())  # unknown observation or non-finite schedule: refused elsewhere
     reasons: list[R] = []
-    max_obs_age = _stricter(ctx.policy.max_observation_age_ns, chunk.time("max_observation_age"))
-    started = chunk.time("inference_start")
+    policy = ctx.policy
+    max_obs_age = _stricter(policy.max_observation_age_ns, times["max_observation_age"])
+    started = times["inference_start"]
     if started is not None and started + offset - t_obs + uncertainty > max_obs_age:
         reasons.append(R.OBSERVATION_STALE)
-    max_age = _stricter(ctx.policy.max_action_age_ns, chunk.time("max_action_age"))
+    max_age = _stricter(policy.max_action_age_ns, times["max_action_age"])
     first_due = first + offset
-    horizon = chunk.horizon
+    horizon = chunk.actions.shape[0]
     late = min(horizon, max(0, -(-(ctx.t - first_due) // dt)))
     expires_at = t_obs + max_age - uncertainty + 1
     runnable_until = min(horizon, max(0, -(-(expires_at - first_due) // dt)))
@@ -142,7 +141,7 @@ def time_verdict(chunk: Chunk, ctx: AdmissionContext, t_obs: int | None) -> Timi
     if late >= runnable_until:
         reasons.append(R.EXPIRED)
     elif late > 0:
-        if not ctx.policy.trim:
+        if not policy.trim:
             reasons.append(R.EXPIRED)
         elif _trim_deletes_event(chunk, late, ctx.limits):
             reasons.append(R.TRIM_FORBIDDEN)
@@ -172,17 +171,19 @@ def divergence(chunk: Chunk, ctx: AdmissionContext, first_due: int | None) -> fl
     The action scheduled for the admission instant is used, or the first action if the chunk
     starts later; the gripper dimension is left out.
     """
-    dt = chunk.time("action_dt")
+    actions, measured, grip = chunk.actions, ctx.measured_q, ctx.limits.gripper_index
+    dt = chunk.times["action_dt"]
     index = 0
     if first_due is not None and dt is not None and ctx.t > first_due:
-        index = min(chunk.horizon - 1, (ctx.t - first_due) // dt)
-    mask = ctx.limits.arm_mask
-    if chunk.actions.shape[1] != mask.shape[0] or ctx.measured_q.shape != mask.shape:
+        index = min(actions.shape[0] - 1, (ctx.t - first_due) // dt)
+    dim = ctx.limits.lower.shape[0]
+    if actions.shape[1] != dim or measured.shape != (dim,):
         return 0.0
-    diff = np.abs(chunk.actions[index] - ctx.measured_q)
-    if ctx.limits.gripper_index is not None:
-        diff = diff[mask]
-    return float(diff.max()) if diff.size else 0.0
+    # A handful of joints: plain floats cost less than three numpy calls here.
+    gaps = [abs(a - m) for a, m in zip(actions[index].tolist(), measured.tolist(), strict=True)]
+    if grip is not None:
+        gaps[grip] = 0.0  # not a joint: a gripper event is a step, never a divergence
+    return max(gaps)
 
 
 def divergence_verdict(

@@ -8,8 +8,7 @@ and after blending (the mean of two feasible actions need not be feasible).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
+import msgspec
 import numpy as np
 
 from assurance.envelope import Chunk, ReplacementPolicy
@@ -19,8 +18,7 @@ from assurance.projection import Projection, Reference, project
 from assurance.queue import ActionQueue, Row, Segment
 
 
-@dataclass(frozen=True, slots=True, eq=False)
-class MergePlan:
+class MergePlan(msgspec.Struct, frozen=True, eq=False):
     segment: Segment
     merge: ReplacementPolicy
     cut_at: int | None
@@ -41,15 +39,16 @@ class MergePlan:
             queue.push(self.segment)
 
 
-@dataclass(frozen=True, slots=True)
-class MergeInputs:
+class MergeInputs(msgspec.Struct, frozen=True, eq=False):
     chunk: Chunk
     timing: Timing
     t_obs: int
     epoch: int
     blend_allowed: bool
-    hold_q: np.ndarray
-    """Where the robot is being held (or measured) if no queued row precedes the chunk."""
+    hold_q: np.ndarray | None
+    """Where the robot is being held, if it is; else it starts from ``measured_q`` (clipped
+    into the limits) when no queued row precedes the chunk."""
+    measured_q: np.ndarray
     last_setpoint: Row | None = None
     """The row the last tick sent, if it sent one: precedes the chunk when the queue has no
     row before it any more (purged by a new epoch), so the new rows continue its motion."""
@@ -57,7 +56,7 @@ class MergeInputs:
 
 def plan_merge(queue: ActionQueue, inputs: MergeInputs, limits: JointLimits) -> MergePlan:
     chunk, timing = inputs.chunk, inputs.timing
-    dt = int(chunk.time("action_dt") or 1)
+    dt = chunk.times["action_dt"] or 1
     first_due = int(timing.first_due or 0) + timing.trim * dt
     rows = chunk.actions[timing.trim:]
     policy = chunk.replacement_policy
@@ -76,8 +75,8 @@ def plan_merge(queue: ActionQueue, inputs: MergeInputs, limits: JointLimits) -> 
         if policy is ReplacementPolicy.BLEND:
             rows, blended = _blend(queue, rows, first_due, dt)
     rows, first_due = rows[skip:], first_due + skip * dt
-    displaced = _rows_from(queue, cut_at) if cut_at is not None else 0
-    reference = _reference(queue, first_due, dt, inputs, cut_at)
+    displaced = queue.rows_from(cut_at) if cut_at is not None else 0
+    reference = _reference(queue, first_due, dt, inputs, cut_at, limits)
     projection = project(rows, reference, dt * 1e-9, limits) if rows.shape[0] else _empty(rows)
     segment = _segment(inputs, projection, reference, first_due, dt, timing.trim + skip)
     return MergePlan(segment, policy, cut_at, displaced, blended, projection, older, timing.trim)
@@ -99,7 +98,8 @@ def _blend(
 
 
 def _reference(
-    queue: ActionQueue, first_due: int, dt: int, inputs: MergeInputs, cut_at: int | None
+    queue: ActionQueue, first_due: int, dt: int, inputs: MergeInputs, cut_at: int | None,
+    limits: JointLimits,
 ) -> Reference:
     """The setpoint the first new row follows.
 
@@ -113,35 +113,28 @@ def _reference(
     if before is None and last is not None and _contiguous(last, first_due, dt):
         before = last
     if before is None:
-        return Reference(inputs.hold_q, np.zeros_like(inputs.hold_q))
-    seg = before.segment
-    if _contiguous(before, first_due, dt):
-        return Reference(before.q, before.segment.step_into(before.row) * (dt / seg.dt))
-    return Reference(before.q, np.zeros_like(before.q))
+        start = inputs.hold_q if inputs.hold_q is not None else limits.clip(inputs.measured_q)
+        return Reference(start, np.zeros_like(start))
+    seg, q = before.segment, before.q
+    if not _contiguous(before, first_due, dt):
+        return Reference(q, np.zeros_like(q))
+    step = seg.step_into(before.row)
+    return Reference(q, step if seg.dt == dt else step * (dt / seg.dt))
 
 
 def _contiguous(before: Row, first_due: int, dt: int) -> bool:
-    return before.due + before.segment.dt >= first_due and before.due >= first_due - 2 * dt
-
-
-def _rows_from(queue: ActionQueue, t: int) -> int:
-    total = 0
-    for seg in queue.segments:
-        if seg.end > t:
-            total += seg.rows - max(0, min(seg.rows, -(-(t - seg.first_due) // seg.dt)))
-    return total
+    due = before.due
+    return due + before.segment.dt >= first_due and due >= first_due - 2 * dt
 
 
 def _segment(
     inputs: MergeInputs, projection: Projection, reference: Reference, first_due: int, dt: int,
     first_index: int,
 ) -> Segment:
-    actions = projection.actions
-    ref_step = actions[0] - reference.q if actions.shape[0] else np.zeros_like(reference.q)
     return Segment(
         chunk_id=inputs.chunk.chunk_id, epoch=inputs.epoch, phase=inputs.chunk.task_phase,
         t_obs=inputs.t_obs, expires_at=inputs.timing.expires_at, first_due=first_due, dt=dt,
-        actions=actions, first_index=first_index, ref_step=ref_step,
+        actions=projection.actions, first_index=first_index, ref_q=reference.q,
     )
 
 

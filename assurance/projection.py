@@ -21,8 +21,9 @@ The gripper dimension is only clipped to its position limits: a gripper event is
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
+import msgspec
 import numpy as np
 
 from assurance.limits import JointLimits
@@ -30,22 +31,17 @@ from assurance.limits import JointLimits
 _EPS = 1e-9
 
 
-@dataclass(frozen=True, slots=True, eq=False)
-class Projection:
+class Projection(msgspec.Struct, frozen=True, eq=False):
     """The projected actions and how far each one moved (max-abs over dimensions)."""
 
     actions: np.ndarray
     distances: np.ndarray
     recoverable: bool
     """False when the reference itself could not be continued inside the limits."""
-
-    @property
-    def max_distance(self) -> float:
-        return float(self.distances.max()) if self.distances.size else 0.0
+    max_distance: float = 0.0
 
 
-@dataclass(frozen=True, slots=True, eq=False)
-class Reference:
+class Reference(msgspec.Struct, frozen=True, eq=False):
     """The last commanded setpoint before the chunk and its step on the same grid."""
 
     q: np.ndarray
@@ -83,12 +79,26 @@ class _Bounds:
     inv_a: np.ndarray
     """1/``a_step``, 0 where unbounded."""
     arm: np.ndarray
-    all_arm: bool
-    """No gripper dimension: no masking needed."""
-    inner_lower: np.ndarray
-    inner_upper: np.ndarray
-    """Between these, no admissible step can reach a limit even while braking: the position
-    and braking checks can be skipped (the usual case, far from the joint limits)."""
+    mid: np.ndarray
+    """Centre of the band in which no admissible step can reach a position limit, braking
+    included (the usual case, far from the joint limits); the gripper's band is its limits."""
+    kind_bounds: np.ndarray
+    """Per row kind (step, change of step, distance from ``mid``), the largest admissible
+    magnitude: 3×D, infinite where unbounded, −∞ where no band exists (never admitted)."""
+    band_cache: dict[int, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict, repr=False)
+
+    def band(self, horizon: int) -> tuple[np.ndarray, np.ndarray]:
+        """The 3H×D magnitude bounds of a horizon-``horizon`` chunk, and H zeros (read-only)."""
+        cached = self.band_cache.get(horizon)
+        if cached is None:
+            if len(self.band_cache) >= 8:  # a policy sends one or two horizons; bound the rest
+                self.band_cache.clear()
+            rows = np.repeat(self.kind_bounds, horizon, axis=0)
+            zeros = np.zeros(horizon)
+            rows.setflags(write=False)
+            zeros.setflags(write=False)
+            cached = self.band_cache[horizon] = (rows, zeros)
+        return cached
 
 
 _bounds_cache: dict[tuple[int, float], tuple[JointLimits, _Bounds]] = {}
@@ -99,7 +109,7 @@ def _bounds(limits: JointLimits, dt_s: float) -> _Bounds:
     cached = _bounds_cache.get(key)
     if cached is not None and cached[0] is limits:
         return cached[1]
-    with np.errstate(invalid="ignore"):  # infinite limits: NaN bands simply never match
+    with np.errstate(invalid="ignore"):  # infinite limits: NaN bands are replaced below
         bounds = _derive_bounds(limits, dt_s)
     if len(_bounds_cache) > 64:  # a handful of (limits, dt) pairs in any real run
         _bounds_cache.clear()
@@ -117,12 +127,26 @@ def _derive_bounds(limits: JointLimits, dt_s: float) -> _Bounds:
     m = np.floor(v_step * inv_a)
     margin = np.where(np.isfinite(v_step), v_step + m * v_step - a_finite * m * (m + 1) / 2,
                       np.inf)
+    arm = limits.arm_mask
+    lower = np.where(arm, limits.lower + margin, limits.lower)
+    upper = np.where(arm, limits.upper - margin, limits.upper)
+    mid, half = _band(lower, upper)
+    rows = np.stack([np.where(arm, v_step + _EPS, np.inf), np.where(arm, a_step + _EPS, np.inf),
+                     half + _EPS])
     return _Bounds(
         lower=limits.lower - _EPS, upper=limits.upper + _EPS, v_step=v_step, a_step=a_step,
-        a_finite=a_finite, inv_a=inv_a, arm=limits.arm_mask,
-        all_arm=bool(limits.arm_mask.all()),
-        inner_lower=limits.lower + margin, inner_upper=limits.upper - margin,
+        a_finite=a_finite, inv_a=inv_a, arm=arm, mid=mid, kind_bounds=rows,
     )
+
+
+def _band(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Centre and half-width of ``[lower, upper]``: (0, ∞) where both ends are unbounded, a
+    −∞ half-width where the band is one-sided or empty (such a joint takes the exact check)."""
+    unbounded = np.isneginf(lower) & np.isposinf(upper)
+    mid = np.where(unbounded, 0.0, (lower + upper) / 2)
+    half = np.where(unbounded, np.inf, (upper - lower) / 2)
+    usable = unbounded | (np.isfinite(mid) & (half >= 0))
+    return np.where(usable, mid, 0.0), np.where(usable, half, -np.inf)
 
 
 def project(
@@ -132,11 +156,12 @@ def project(
     bounds = _bounds(limits, dt_s)
     if not actions.size:
         return Projection(actions, np.zeros(0), True)
-    # The fast check first (arm-only rows); the violation matrix is built once, if at all.
-    fast = bounds.all_arm and _feasible(actions, reference, bounds)
-    violating = None if fast else _violations(actions, reference, bounds)
-    if violating is None or not violating.any():
-        return Projection(actions, np.zeros(actions.shape[0]), True)
+    band, zeros = bounds.band(actions.shape[0])
+    if _inside(actions, reference, bounds.mid, band):
+        return Projection(actions, zeros, True)
+    violating = _violations(actions, reference, bounds)
+    if not np.count_nonzero(violating):
+        return Projection(actions, zeros, True)
     projected = actions.copy()
     recoverable = True
     for joint in np.flatnonzero(violating.any(axis=0)):
@@ -151,7 +176,29 @@ def project(
                                       bounds.v_step, bounds.a_step, limits)
     distances = np.abs(projected - actions).max(axis=1)
     projected.setflags(write=False)
-    return Projection(projected, distances, recoverable)
+    return Projection(projected, distances, recoverable, float(distances.max()))
+
+
+def _inside(actions: np.ndarray, ref: Reference, mid: np.ndarray, band: np.ndarray) -> bool:
+    """Does the proposal already satisfy every bound, far from its position limits? (the common
+    case, and the gripper inside its limits)
+
+    One pass of a few numpy calls, because each costs microseconds on arrays this small: the
+    steps, the changes of step and the distances from the band's centre are written into one
+    3H×D buffer and compared with their bounds at once. NaN compares false, so it is never
+    admitted here. A proposal that fails this check may still be admissible; the exact check
+    decides.
+    """
+    horizon = actions.shape[0]
+    work = np.empty(band.shape)
+    steps, changes = work[:horizon], work[horizon:2 * horizon]
+    np.subtract(actions[0], ref.q, out=steps[0])
+    np.subtract(actions[1:], actions[:-1], out=steps[1:])
+    np.subtract(steps[0], ref.step, out=changes[0])
+    np.subtract(steps[1:], steps[:-1], out=changes[1:])
+    np.subtract(actions, mid, out=work[2 * horizon:])
+    np.abs(work, out=work)
+    return np.count_nonzero(np.less_equal(work, band)) == work.size
 
 
 def _steps(actions: np.ndarray, ref: Reference) -> tuple[np.ndarray, np.ndarray]:
@@ -170,25 +217,6 @@ def _reach(steps: np.ndarray, b: _Bounds) -> np.ndarray:
     s = np.abs(steps)
     m = np.floor(s * b.inv_a)
     return np.copysign(m * s - b.a_finite * m * (m + 1.0) * 0.5, steps)
-
-
-def _feasible(actions: np.ndarray, ref: Reference, b: _Bounds) -> bool:
-    """One vectorized pass: does an arm-only proposal already satisfy every bound? (the common
-    case)
-
-    Each numpy call costs microseconds on small arrays, so the common case is checked with as
-    few of them as possible: rates first, then positions against the inner band where no step
-    can reach a limit; only a proposal near its limits pays for the braking check.
-    """
-    steps, changes = _steps(actions, ref)
-    if (np.abs(steps) > b.v_step + _EPS).any() or (np.abs(changes) > b.a_step + _EPS).any():
-        return False
-    if (actions > b.inner_lower).all() and (actions < b.inner_upper).all():
-        return True
-    if (actions < b.lower).any() or (actions > b.upper).any():
-        return False
-    ahead = actions + _reach(steps, b)
-    return not ((ahead > b.upper).any() or (ahead < b.lower).any())
 
 
 def _violations(actions: np.ndarray, ref: Reference, b: _Bounds) -> np.ndarray:

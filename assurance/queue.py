@@ -10,13 +10,11 @@ instant the row would run.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
+import msgspec
 import numpy as np
 
 
-@dataclass(slots=True, eq=False)
-class Segment:
+class Segment(msgspec.Struct, eq=False):
     chunk_id: str
     epoch: int
     phase: str
@@ -28,16 +26,23 @@ class Segment:
     actions: np.ndarray
     first_index: int
     """Index in the original chunk of row 0 (rows before it were trimmed or cut)."""
-    ref_step: np.ndarray
-    """Step from the preceding setpoint to row 0, on this segment's grid."""
+    ref_q: np.ndarray
+    """The setpoint row 0 follows (the step into row 0 is taken from it, when asked)."""
+    rows: int = 0
+    end: int = 0
+    """``rows`` and the instant the last row stops being due: kept as plain fields (set here and
+    by :meth:`truncate`, the only change a segment undergoes) because the queue reads them
+    on every tick and every admission."""
 
-    @property
-    def rows(self) -> int:
-        return int(self.actions.shape[0])
+    def __post_init__(self) -> None:
+        self.rows = int(self.actions.shape[0])
+        self.end = self.first_due + self.rows * self.dt
 
-    @property
-    def end(self) -> int:
-        return self.first_due + self.rows * self.dt
+    def truncate(self, rows: int) -> None:
+        """Keep only the first ``rows`` rows."""
+        self.actions = self.actions[:rows]
+        self.rows = rows
+        self.end = self.first_due + rows * self.dt
 
     def due(self, row: int) -> int:
         return self.first_due + row * self.dt
@@ -46,11 +51,11 @@ class Segment:
         return (t - self.first_due) // self.dt
 
     def step_into(self, row: int) -> np.ndarray:
-        return self.ref_step if row == 0 else self.actions[row] - self.actions[row - 1]
+        before = self.ref_q if row == 0 else self.actions[row - 1]
+        return self.actions[row] - before
 
 
-@dataclass(frozen=True, slots=True, eq=False)
-class Row:
+class Row(msgspec.Struct, frozen=True, eq=False):
     segment: Segment
     row: int
 
@@ -86,10 +91,11 @@ class ActionQueue:
     def pending_rows(self, t: int) -> int:
         """Rows not yet finished at ``t`` (the one in force counts)."""
         total = 0
-        for index, seg in enumerate(self._segments):
-            stop = self._cut_of(index)
+        segs = self._segments
+        for index, seg in enumerate(segs):
+            stop = segs[index + 1].first_due if index + 1 < len(segs) else seg.end
             last = min(seg.rows, max(0, -(-(stop - seg.first_due) // seg.dt)))
-            done = max(0, min(last, seg.row_at(t))) if t >= seg.first_due else 0
+            done = max(0, min(last, (t - seg.first_due) // seg.dt)) if t >= seg.first_due else 0
             total += last - done
         return total
 
@@ -124,14 +130,14 @@ class ActionQueue:
 
     def predecessor(self, t: int) -> Row | None:
         """The last queued row due strictly before ``t``."""
-        for index in range(len(self._segments) - 1, -1, -1):
-            seg = self._segments[index]
+        segs = self._segments
+        for index in range(len(segs) - 1, -1, -1):
+            seg = segs[index]
             if seg.first_due >= t:
                 continue
             row = min(seg.rows - 1, (t - 1 - seg.first_due) // seg.dt)
-            stop = self._cut_of(index)
-            while row >= 0 and seg.due(row) >= stop:
-                row -= 1
+            stop = segs[index + 1].first_due if index + 1 < len(segs) else seg.end
+            row = min(row, -(-(stop - seg.first_due) // seg.dt) - 1)  # superseded rows
             if row >= 0:
                 return Row(seg, row)
         return None
@@ -141,6 +147,14 @@ class ActionQueue:
         if row is None or t >= row.due + row.segment.dt:
             return None
         return row.q
+
+    def rows_from(self, t: int) -> int:
+        """Queued rows due at or after ``t`` (what a cut at ``t`` would remove)."""
+        total = 0
+        for seg in self._segments:
+            if seg.end > t:
+                total += seg.rows - max(0, min(seg.rows, -(-(t - seg.first_due) // seg.dt)))
+        return total
 
     def obs_time_from(self, t: int) -> int | None:
         """Newest observation time among rows that a chunk starting at ``t`` would displace."""
@@ -158,7 +172,7 @@ class ActionQueue:
             keep = min(seg.rows, -(-(t - seg.first_due) // seg.dt))
             removed += seg.rows - keep
             if keep < seg.rows:
-                seg.actions = seg.actions[:keep]
+                seg.truncate(keep)
             kept.append(seg)
         self._segments = kept
         return removed
@@ -168,12 +182,6 @@ class ActionQueue:
 
     def epochs(self) -> set[int]:
         return {s.epoch for s in self._segments}
-
-    def _cut_of(self, index: int) -> int:
-        """Where segment ``index`` stops being in force: the next segment's first due time."""
-        if index + 1 < len(self._segments):
-            return self._segments[index + 1].first_due
-        return self._segments[index].end
 
     def _drop_finished(self, t: int) -> None:
         segs = self._segments

@@ -7,7 +7,9 @@ Prints, for 50x6 and 50x7 chunks:
   - full admission of a chunk that needs the exact (sequential) projection,
 as p50 / p99 in microseconds, and the replay speed of a 60 s scenario at a 2 ms control period
 as a multiple of real time. Figures are printed, never asserted (the machine is shared and
-noisy); compare the ratios within one run.
+noisy); compare the ratios within one run. Where Linux perf events are available, the user-space
+instructions and cycles of one full admission are printed too: the instruction count does not
+move with the machine's load, so it is the figure to compare across runs and commits.
 
     .venv/bin/python bench/admission.py [--samples 3000]
 """
@@ -30,6 +32,7 @@ import numpy as np
 
 from assurance.envelope import decode_wire_chunk, to_wire
 from assurance.event_chunk import decode_event_chunk
+from bench.counters import Counters, open_counters
 from kernel.core.events import ChunkEvent, ObservationEvent, StateEvent, TickEvent
 from kernel.core.lines import encode
 from kernel.core.runtime import Core
@@ -69,12 +72,14 @@ def _percentiles(samples: list[int]) -> tuple[float, float]:
     return ordered[len(ordered) // 2] / 1e3, ordered[int(len(ordered) * 0.99)] / 1e3
 
 
-def _admission(dim: int, samples: int, fast: bool) -> dict[str, tuple[float, float]]:
+def _admission(
+    dim: int, samples: int, fast: bool, counters: Counters | None = None
+) -> dict[str, tuple[float, float]]:
     config = _config(dim)
     core = Core(config)
     start = config.initial_q.copy()
     encoder = msgspec.msgpack.Encoder()
-    decode_ns, json_ns, admit_ns = [], [], []
+    decode_ns, json_ns, admit_ns, instructions, cycles = [], [], [], [], []
     for index in range(1, samples + 1):
         t_ms = index * 4.0
         core.handle(ObservationEvent(t=round(t_ms * MS), observation_id=f"O{index}"))
@@ -85,15 +90,24 @@ def _admission(dim: int, samples: int, fast: bool) -> dict[str, tuple[float, flo
         t = round((t_ms + 1) * MS)
         json_ns.append(_timed(lambda text=text: json.loads(text)))
         decode_ns.append(_timed(lambda frame=frame, t=t: decode_wire_chunk(frame, t)))
+        counts = counters.read() if counters else (0, 0)
         began = time.perf_counter_ns()
         decoded = decode_wire_chunk(frame, t)
         lines = core.handle(ChunkEvent(t, decoded))
         admit_ns.append(time.perf_counter_ns() - began)
+        if counters:
+            after = counters.read()
+            instructions.append(after[0] - counts[0])
+            cycles.append(after[1] - counts[1])
         if index < 5 and lines[0].decision not in ("accepted", "replaced"):
             raise RuntimeError(f"benchmark chunk was refused: {lines[0]}")
         core.tick(t)
-    return {"decode": _percentiles(decode_ns), "json": _percentiles(json_ns),
-            "admit": _percentiles(admit_ns)}
+    figures = {"decode": _percentiles(decode_ns), "json": _percentiles(json_ns),
+               "admit": _percentiles(admit_ns)}
+    if counters:  # thousands, so that _percentiles' /1e3 leaves them in thousands
+        figures["instructions"] = _percentiles(instructions)
+        figures["cycles"] = _percentiles(cycles)
+    return figures
 
 
 def _timed(fn: Callable[[], object]) -> int:
@@ -144,9 +158,10 @@ def main() -> None:
     parser.add_argument("--seconds", type=int, default=60)
     args = parser.parse_args()
     gc.disable()
+    counters = open_counters()
     print(f"admission cost, {args.samples} chunks each (us, p50 / p99)")
     for dim in (6, 7):
-        smooth = _admission(dim, args.samples, fast=False)
+        smooth = _admission(dim, args.samples, fast=False, counters=counters)
         fast = _admission(dim, args.samples, fast=True)
         print(f"  50x{dim}  wire decode only      {smooth['decode'][0]:7.1f} / "
               f"{smooth['decode'][1]:7.1f}")
@@ -158,6 +173,12 @@ def main() -> None:
               f"{fast['admit'][1]:7.1f}   (needs exact projection)")
         ratio = smooth["admit"][1] / smooth["json"][1]
         print(f"  50x{dim}  admission p99 / json-parse p99 = {ratio:.2f}")
+        if "instructions" in smooth:
+            print(f"  50x{dim}  full admission, user space: {smooth['instructions'][0]:.0f}k "
+                  f"instructions p50, {smooth['cycles'][0]:.0f}k / {smooth['cycles'][1]:.0f}k "
+                  "cycles p50 / p99")
+        else:
+            print(f"  50x{dim}  instruction counts: not available (no perf events here)")
     gc.enable()
     core_x, log_x, ticks = _replay_speed(args.seconds)
     print(f"replay of a {args.seconds} s scenario ({ticks} ticks at 2 ms, chunks at 10 Hz): "

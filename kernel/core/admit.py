@@ -8,8 +8,6 @@ commit of a plan built beforehand.
 
 from __future__ import annotations
 
-import dataclasses
-
 import msgspec
 import numpy as np
 
@@ -127,7 +125,11 @@ def _joint_context(ctx: AdmissionContext, joints: Chunk) -> AdmissionContext:
     """Gates that read actions see joint targets: a mapped chunk is as wide as the robot (a
     joint-space chunk keeps its session's width, so a chunk of the wrong width stays one)."""
     width = joints.actions.shape[1]
-    return ctx if width == ctx.action_dim else dataclasses.replace(ctx, action_dim=width)
+    return ctx if width == ctx.action_dim else msgspec.structs.replace(ctx, action_dim=width)
+
+
+_NOT_PLANNED = frozenset({R.NONFINITE, R.SCHEMA_MISMATCH, R.CLOCK_INVALID,
+                          R.UNKNOWN_OBSERVATION, R.EXPIRED, R.TRIM_FORBIDDEN}) | IRRELEVANT
 
 
 def _can_plan(chunk: Chunk, timing: Timing, reasons: list[R]) -> bool:
@@ -138,18 +140,16 @@ def _can_plan(chunk: Chunk, timing: Timing, reasons: list[R]) -> bool:
     because a projection against a context it was not made for would mean nothing (its refusal
     already says why).
     """
-    structural = {R.NONFINITE, R.SCHEMA_MISMATCH, R.CLOCK_INVALID, R.UNKNOWN_OBSERVATION,
-                  R.EXPIRED, R.TRIM_FORBIDDEN}
-    if (structural | IRRELEVANT) & set(reasons) or timing.first_due is None:
+    if not _NOT_PLANNED.isdisjoint(reasons) or timing.first_due is None:
         return False
     return timing.late < timing.runnable_until or chunk.horizon == 0
 
 
 def _plan(state: CoreState, chunk: Chunk, timing: Timing, t_obs: int | None) -> MergePlan:
-    hold = state.hold_q if state.hold_q is not None else state.hold_target()
     inputs = MergeInputs(
         chunk=chunk, timing=timing, t_obs=int(t_obs or 0), epoch=state.epoch,
-        blend_allowed=state.card.policy.blend, hold_q=hold, last_setpoint=state.last_setpoint,
+        blend_allowed=state.card.policy.blend, hold_q=state.hold_q, measured_q=state.measured_q,
+        last_setpoint=state.last_setpoint,
     )
     return plan_merge(state.queue, inputs, state.config.limits)
 

@@ -10,8 +10,7 @@ setpoint carries its reason.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
+import msgspec
 import numpy as np
 
 from assurance.clock import ns_to_ms
@@ -24,8 +23,7 @@ from kernel.core.state import CoreState
 from skills.phases import Executor, TaskPhase
 
 
-@dataclass(frozen=True, slots=True, eq=False)
-class TickCommand:
+class TickCommand(msgspec.Struct, frozen=True, eq=False):
     """What the shell sends this period. ``target`` is a joint vector where one applies."""
 
     command: Command

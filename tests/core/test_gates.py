@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import dataclasses
 from typing import Any
 
 import numpy as np
@@ -253,5 +252,5 @@ def test_divergence_is_skipped_for_nonfinite_or_misshapen_chunks() -> None:
 
 
 def test_the_context_is_a_frozen_snapshot() -> None:
-    with pytest.raises(dataclasses.FrozenInstanceError):
+    with pytest.raises(AttributeError):
         context().t = 5  # type: ignore[misc]

@@ -41,14 +41,14 @@ def segment(first_due: int, values: list[float], t_obs: int = 0, chunk_id: str =
             ) -> Segment:
     actions = np.array([[v, v] for v in values], dtype=float)
     return Segment(chunk_id, 1, "FREE_SPACE", t_obs, 10**15, first_due, DT, actions, 0,
-                   np.zeros(2))
+                   actions[0])  # arrives at rest: no step into row 0
 
 
 def plan(queue: ActionQueue, new: Chunk, limits: JointLimits = FREE, *, trim: int = 0,
          t_obs: int = 0, blend_allowed: bool = True) -> MergePlan:
     first = new.time("first_action_time")
     timing = Timing((), first, trim, new.horizon, 10**15, trim)
-    inputs = MergeInputs(new, timing, t_obs, 1, blend_allowed, np.zeros(2))
+    inputs = MergeInputs(new, timing, t_obs, 1, blend_allowed, np.zeros(2), np.zeros(2))
     return plan_merge(queue, inputs, limits)
 
 
@@ -171,7 +171,7 @@ def test_replace_is_projected_from_the_queued_predecessor() -> None:
     # V = 1 rad/s * 10 ms: the jump from the queued 0.0 to 0.5 must become a ramp
     assert result.projection.max_distance > 0.4
     np.testing.assert_allclose(result.segment.actions[0], [0.01, 0.01])
-    np.testing.assert_allclose(result.segment.ref_step, [0.01, 0.01])
+    np.testing.assert_allclose(result.segment.step_into(0), [0.01, 0.01])
 
 
 def test_an_empty_queue_projects_from_the_hold_position() -> None:

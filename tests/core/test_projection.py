@@ -16,6 +16,8 @@ from hypothesis import strategies as st
 from assurance.limits import JointLimits
 from assurance.projection import (
     Reference,
+    _bounds,
+    _inside,
     braking_distance,
     check_sequence,
     max_step_toward,
@@ -64,21 +66,44 @@ def cases(draw: st.DrawFn, infinite: bool = True) -> Case:
 
 
 @st.composite
-def feasible_cases(draw: st.DrawFn) -> Case:
-    """Smooth motions well inside wide position limits: admissible by construction."""
+def feasible_cases(draw: st.DrawFn, rate_scale: float = 0.9) -> Case:
+    """Smooth motions well inside wide position limits: admissible by construction (rates
+    up to ``rate_scale`` of their limits; above 1, some break the velocity or acceleration
+    limit, by a little)."""
     dim, horizon = draw(st.integers(1, 4)), draw(st.integers(1, 10))
     dt = draw(st.sampled_from([0.01, 0.05]))
     vel = np.array(draw(st.lists(floats(0.1, 2.0), min_size=dim, max_size=dim)))
     acc = np.array(draw(st.lists(floats(1.0, 50.0), min_size=dim, max_size=dim)))
     limits = JointLimits(np.full(dim, -100.0), np.full(dim, 100.0), vel, acc)
-    v_step, a_step = 0.9 * vel * dt, 0.9 * acc * dt * dt
-    q, step, rows = np.zeros(dim), np.zeros(dim), []
+    v_step, a_step = rate_scale * vel * dt, rate_scale * acc * dt * dt
+    moving = np.array([draw(floats(-1.0, 1.0)) for _ in range(dim)]) * v_step
+    q, step, rows = np.zeros(dim), moving, []
     for _ in range(horizon):
         change = np.array([draw(floats(-1.0, 1.0)) for _ in range(dim)]) * a_step
         step = np.clip(step + change, -v_step, v_step)
         q = q + step
         rows.append(q)
-    return Case(np.array(rows), Reference(np.zeros(dim), np.zeros(dim)), dt, limits)
+    return Case(np.array(rows), Reference(np.zeros(dim), moving), dt, limits)
+
+
+@st.composite
+def near_limit_cases(draw: st.DrawFn) -> Case:
+    """Motions whose position limits sit just outside them (a gripper, maybe): the band of
+    the fast check is narrow or empty, so both of its answers occur."""
+    case = draw(feasible_cases(rate_scale=draw(st.sampled_from([0.9, 1.2]))))
+    dim = case.actions.shape[1]
+    room = np.array(draw(st.lists(floats(0.0, 0.02), min_size=dim, max_size=dim)))
+    span = np.abs(case.actions).max(axis=0) + room + 1e-6
+    grip = draw(st.none() | st.integers(0, dim - 1))
+    limits = JointLimits(-span, span, case.limits.velocity, case.limits.acceleration,
+                         gripper_index=grip)
+    return Case(case.actions, case.ref, case.dt, limits)
+
+
+def fast_check(case: Case) -> bool:
+    bounds = _bounds(case.limits, case.dt)
+    band, _ = bounds.band(case.actions.shape[0])
+    return _inside(case.actions, case.ref, bounds.mid, band)
 
 
 def run(case: Case):
@@ -93,6 +118,37 @@ def test_a_recoverable_projection_passes_every_bound(case: Case) -> None:
     result = run(case)
     if result.recoverable:
         assert check_sequence(result.actions, case.ref, case.dt, case.limits)
+
+
+@given(cases() | feasible_cases(rate_scale=1.2) | near_limit_cases())
+def test_the_fast_check_never_admits_what_the_exact_check_refuses(case: Case) -> None:
+    if fast_check(case):
+        assert check_sequence(case.actions, case.ref, case.dt, case.limits)
+
+
+@given(feasible_cases())
+def test_the_fast_check_admits_smooth_motion_far_from_the_limits(case: Case) -> None:
+    assert fast_check(case)
+
+
+@pytest.mark.parametrize("scale", [0.99, 1.01])
+def test_the_fast_check_stops_at_each_bound(scale: float) -> None:
+    """A steady step, a step change and a position, each at 99 % and 101 % of its bound."""
+    dt, limits = 0.01, uniform()  # v_step 0.01, a_step 0.001, position ±1
+    v_step, a_step = 1.0 * dt, 10.0 * dt * dt
+    cruise = Case(np.array([[v_step * scale], [2 * v_step * scale]]),
+                  Reference(np.zeros(1), np.array([v_step * scale])), dt, limits)
+    kick = Case(np.array([[a_step * scale]]), at_rest(), dt, limits)
+    margin = v_step + 10 * v_step - a_step * 10 * 11 / 2  # furthest reach from a full step
+    edge = 1.0 - margin
+    near = Case(np.array([[edge * scale]]), at_rest(edge * scale), dt, limits)
+    for case in (cruise, kick, near):
+        assert fast_check(case) == (scale < 1)
+
+
+def test_the_fast_check_refuses_nan() -> None:
+    case = Case(np.array([[0.0], [np.nan]]), at_rest(), 0.01, uniform())
+    assert not fast_check(case)
 
 
 @given(feasible_cases())

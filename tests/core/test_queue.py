@@ -16,7 +16,7 @@ def seg(chunk_id: str, first_due: int, rows: int, dt: int = DT, t_obs: int = 0,
     actions = base + np.arange(rows, dtype=float)[:, None] * np.ones((1, 2))
     return Segment(chunk_id=chunk_id, epoch=1, phase="FREE_SPACE", t_obs=t_obs,
                    expires_at=expires_at, first_due=first_due, dt=dt, actions=actions,
-                   first_index=0, ref_step=np.zeros(2))
+                   first_index=0, ref_q=np.zeros(2))
 
 
 def queue_of(*segments: Segment) -> ActionQueue:
