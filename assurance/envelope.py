@@ -167,6 +167,9 @@ class ChunkDecodeError(Exception):
 
 # What numpy and msgspec may raise on hostile input that slipped past the explicit checks.
 UNTRUSTED_INPUT_ERRORS = (ValueError, TypeError, OverflowError, SyntaxError)
+# What msgspec's decoder raises besides its own errors: UnicodeDecodeError (a ValueError) for
+# invalid UTF-8, RecursionError for arrays nested deeper than the interpreter's stack allows.
+UNDECODABLE_FRAME = (ValueError, RecursionError)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -259,6 +262,8 @@ def decode_wire_chunk(frame: bytes, client_receive: int) -> Chunk | MalformedChu
         wire = _wire_decoder.decode(frame)
     except (msgspec.ValidationError, msgspec.DecodeError) as error:
         return MalformedChunk(_salvage_wire_id(frame), short_error(error))
+    except UNDECODABLE_FRAME as error:  # invalid UTF-8 in a string, arrays nested too deep
+        return MalformedChunk(_salvage_wire_id(frame), f"undecodable: {type(error).__name__}")
     try:
         return from_wire(wire, client_receive)
     except ChunkDecodeError as error:
@@ -340,7 +345,7 @@ def _dtype_of(text: str) -> np.dtype:
 def _salvage_wire_id(frame: bytes) -> str | None:
     try:
         loose = _loose_decoder.decode(frame)
-    except (msgspec.DecodeError, ValueError):
+    except (msgspec.DecodeError, *UNDECODABLE_FRAME):
         return None
     return salvage_id(loose.get("chunk_id")) if isinstance(loose, dict) else None
 

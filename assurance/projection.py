@@ -29,6 +29,8 @@ import numpy as np
 from assurance.limits import JointLimits
 
 _EPS = 1e-9
+_ROUNDING_ULPS = 8
+"""Rounding of the band's bounds, centre, half-width and of ``x − mid``: under 4 ulps in all."""
 
 
 class Projection(msgspec.Struct, frozen=True, eq=False):
@@ -123,16 +125,17 @@ def _derive_bounds(limits: JointLimits, dt_s: float) -> _Bounds:
     finite = np.isfinite(a_step)
     a_finite = np.where(finite, a_step, 0.0)
     inv_a = np.divide(1.0, a_step, out=np.zeros_like(a_step), where=finite)
-    # The furthest any admissible step (at most v_step) can carry a joint, braking included.
-    m = np.floor(v_step * inv_a)
-    margin = np.where(np.isfinite(v_step), v_step + m * v_step - a_finite * m * (m + 1) / 2,
-                      np.inf)
+    # The furthest any step the rate check lets through (up to v_step + _EPS) can carry a
+    # joint, braking included: with a tiny a_step, the tolerance alone brakes a long way.
+    top = v_step + _EPS
+    m = np.floor(top * inv_a)
+    margin = np.where(np.isfinite(v_step), top + m * top - a_finite * m * (m + 1) / 2, np.inf)
     arm = limits.arm_mask
     lower = np.where(arm, limits.lower + margin, limits.lower)
     upper = np.where(arm, limits.upper - margin, limits.upper)
     mid, half = _band(lower, upper)
     rows = np.stack([np.where(arm, v_step + _EPS, np.inf), np.where(arm, a_step + _EPS, np.inf),
-                     half + _EPS])
+                     half])
     return _Bounds(
         lower=limits.lower - _EPS, upper=limits.upper + _EPS, v_step=v_step, a_step=a_step,
         a_finite=a_finite, inv_a=inv_a, arm=arm, mid=mid, kind_bounds=rows,
@@ -141,10 +144,16 @@ def _derive_bounds(limits: JointLimits, dt_s: float) -> _Bounds:
 
 def _band(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Centre and half-width of ``[lower, upper]``: (0, ∞) where both ends are unbounded, a
-    −∞ half-width where the band is one-sided or empty (such a joint takes the exact check)."""
+    −∞ half-width where the band is one-sided or empty (such a joint takes the exact check).
+
+    ``|x − mid| <= half`` in floating point means ``lower <= x <= upper`` only to within a few
+    units in the last place of the larger bound, so the band is narrowed by that much: with
+    limits like ±1e300 it must not admit what the limits refuse.
+    """
     unbounded = np.isneginf(lower) & np.isposinf(upper)
+    rounding = _ROUNDING_ULPS * np.finfo(float).eps * np.maximum(np.abs(lower), np.abs(upper))
     mid = np.where(unbounded, 0.0, (lower + upper) / 2)
-    half = np.where(unbounded, np.inf, (upper - lower) / 2)
+    half = np.where(unbounded, np.inf, (upper - lower) / 2 - rounding)
     usable = unbounded | (np.isfinite(mid) & (half >= 0))
     return np.where(usable, mid, 0.0), np.where(usable, half, -np.inf)
 
@@ -153,6 +162,8 @@ def project(
     actions: np.ndarray, reference: Reference, dt_s: float, limits: JointLimits
 ) -> Projection:
     """Project ``actions`` (H×D) into the limits, starting from ``reference``."""
+    if actions.ndim != 2 or actions.shape[1] != limits.dim:
+        raise ValueError(f"actions of shape {actions.shape} for {limits.dim} limits")
     bounds = _bounds(limits, dt_s)
     if not actions.size:
         return Projection(actions, np.zeros(0), True)

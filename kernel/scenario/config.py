@@ -43,6 +43,10 @@ def build_config(doc: Mapping[str, Any], where: Where) -> CoreConfig:
     session_doc = mapping(doc, "session", where)
     client, session, phase, q0, epoch = _session(session_doc, where.at("session"), limits, period)
     cartesian = cartesian_mapper(doc, where, limits, client)
+    if cartesian is None and client.action_dim != limits.dim:
+        raise where.at("session").at("action_dim").error(
+            f"must be {limits.dim}, one per robot dimension, for joint-space actions, "
+            f"got {client.action_dim}")
     return CoreConfig(
         limits=limits, control_period_ns=ms_to_ns(period),
         clock_uncertainty_ns=ms_to_ns(uncertainty),

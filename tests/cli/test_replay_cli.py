@@ -123,6 +123,8 @@ def _mutations() -> list[tuple[str, object, str]]:
         ("cartesian width", mutate(lambda d: (d["robot"].update(kinematics="ur5e"),
                                               d["session"].update(CARTESIAN, action_dim=6))),
          "session.action_dim: must be 3"),
+        ("joint-space width", mutate(lambda d: d["session"].update(action_dim=1)),
+         "session.action_dim: must be 6"),
         ("workspace inverted", mutate(lambda d: d["robot"].update(
             workspace={"lower": [0.0, 0.0, 1.0], "upper": [1.0, 1.0, 0.0]})),
          "robot.workspace.lower[2]"),

@@ -256,6 +256,14 @@ def test_bad_wire_fields_are_malformed(field: str, value: Any) -> None:
                       MalformedChunk)
 
 
+@pytest.mark.parametrize("frame", [
+    msgspec.msgpack.encode(wire_dict()).replace(b"c1", b"\xff\xfe", 1),  # invalid UTF-8
+    b"\x91" * 100_000,  # arrays nested deeper than the stack
+], ids=["invalid-utf8", "deep-nesting"])
+def test_frames_msgspec_cannot_decode_are_malformed_not_raised(frame: bytes) -> None:
+    assert isinstance(wire_result(frame), MalformedChunk)
+
+
 @given(st.binary(max_size=96))
 def test_random_bytes_never_raise(frame: bytes) -> None:
     assert isinstance(wire_result(frame), Chunk | MalformedChunk)

@@ -146,6 +146,41 @@ def test_the_fast_check_stops_at_each_bound(scale: float) -> None:
         assert fast_check(case) == (scale < 1)
 
 
+@pytest.mark.parametrize(("lower", "upper", "value", "grip"), [
+    (-1e300, 3.0, 100.0, None),  # a huge limit standing for "unbounded": rounding in the band
+    (-1e300, 3.0, 3.5, None),
+    (0.0, 1e10, -4e-7, 0),  # a gripper in odd units, just below its limit
+])
+def test_the_fast_check_survives_limits_of_any_magnitude(
+    lower: float, upper: float, value: float, grip: int | None
+) -> None:
+    limits = JointLimits(np.array([lower]), np.array([upper]), np.array([1.0]),
+                         np.array([10.0]), gripper_index=grip)
+    case = Case(np.array([[value]]), at_rest(value), 0.01, limits)
+    assert not check_sequence(case.actions, case.ref, case.dt, case.limits)
+    assert not fast_check(case)
+    assert run(case).actions[0, 0] == pytest.approx(min(max(value, lower), upper))
+
+
+def test_the_fast_check_allows_for_the_rate_tolerance_on_a_slow_axis() -> None:
+    """With a tiny a_step, a step just inside the velocity tolerance brakes a long way: the
+    band must leave room for it (found by review: 3 µrad past the limit)."""
+    dt = 0.002
+    limits = JointLimits(np.array([-1.0]), np.array([1.0]), np.array([1e-3]), np.array([1e-4]))
+    bounds = _bounds(limits, dt)
+    step = bounds.v_step[0] + 0.99e-9
+    edge = bounds.mid[0] + bounds.band(1)[0][2, 0]
+    case = Case(np.array([[edge]]), Reference(np.array([edge - step]), np.array([step])), dt,
+                limits)
+    assert fast_check(case) == check_sequence(case.actions, case.ref, case.dt, case.limits)
+
+
+def test_a_chunk_of_the_wrong_width_is_an_error_not_a_broadcast() -> None:
+    with pytest.raises(ValueError, match="shape"):
+        project(np.zeros((2, 1)), Reference(np.zeros(6), np.zeros(6)), 0.01,
+                JointLimits.uniform(6, 3.0, 2.0, 20.0))
+
+
 def test_the_fast_check_refuses_nan() -> None:
     case = Case(np.array([[0.0], [np.nan]]), at_rest(), 0.01, uniform())
     assert not fast_check(case)
