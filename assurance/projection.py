@@ -256,15 +256,16 @@ def _project_joint(
     lo, hi = float(limits.lower[joint]), float(limits.upper[joint])
     vmax, acc = float(v_step[joint]), float(a_step[joint])
     column = projected[:, joint]
-    if first == 0:
-        p, s = float(ref.q[joint]), float(ref.step[joint])
-    else:
-        p = float(column[first - 1])
-        s = p - (float(column[first - 2]) if first >= 2 else float(ref.q[joint]))
-    recoverable = True
-    original = column.copy()
+    original = column.tolist()  # plain floats: one conversion, not one numpy scalar per row
+    values = list(original)
     start = float(ref.q[joint])
-    for row in range(first, column.shape[0]):
+    if first == 0:
+        p, s = start, float(ref.step[joint])
+    else:
+        p = values[first - 1]
+        s = p - (values[first - 2] if first >= 2 else start)
+    recoverable = True
+    for row in range(first, len(values)):
         if row > last and _on_proposal(p, s, original, row, start):
             break
         low = max(-vmax, s - acc, -max_step_toward(p - lo, acc))
@@ -274,16 +275,17 @@ def _project_joint(
             # allowed and let the caller refuse the chunk.
             recoverable = False
             low = high = max(s - acc, min(s + acc, 0.0))
-        s = min(max(float(column[row]) - p, low), high)
+        s = min(max(values[row] - p, low), high)
         p = min(max(p + s, lo), hi)
-        column[row] = p
+        values[row] = p
+    column[first:] = values[first:]
     return recoverable
 
 
-def _on_proposal(p: float, s: float, original: np.ndarray, row: int, start: float) -> bool:
+def _on_proposal(p: float, s: float, original: list[float], row: int, start: float) -> bool:
     """Is the projected state (position ``p``, step ``s``) the proposal's own before ``row``?"""
-    before = float(original[row - 1])
-    step = before - (float(original[row - 2]) if row >= 2 else start)
+    before = original[row - 1]
+    step = before - (original[row - 2] if row >= 2 else start)
     return abs(p - before) <= 1e-12 and abs(s - step) <= 1e-12
 
 
