@@ -93,3 +93,4 @@ def _run_in_child(nodeid: str) -> None:
         warnings.warn(f"{nodeid}: ur_rtde crashed the child process (SIGSEGV); run again",
                       stacklevel=1)
     assert child.returncode == 0, f"child exited {child.returncode}:\n{child.stdout[-3000:]}"
+    assert "\n1 passed in " in child.stdout, child.stdout[-3000:]  # ran, not skipped
