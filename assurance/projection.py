@@ -81,6 +81,9 @@ class _Bounds:
     inv_a: np.ndarray
     """1/``a_step``, 0 where unbounded."""
     arm: np.ndarray
+    margin: np.ndarray
+    """The furthest any step the rate check lets through can carry a joint, braking included:
+    further than this from a limit, braking toward it never binds."""
     mid: np.ndarray
     """Centre of the band in which no admissible step can reach a position limit, braking
     included (the usual case, far from the joint limits); the gripper's band is its limits."""
@@ -138,7 +141,7 @@ def _derive_bounds(limits: JointLimits, dt_s: float) -> _Bounds:
                      half])
     return _Bounds(
         lower=limits.lower - _EPS, upper=limits.upper + _EPS, v_step=v_step, a_step=a_step,
-        a_finite=a_finite, inv_a=inv_a, arm=arm, mid=mid, kind_bounds=rows,
+        a_finite=a_finite, inv_a=inv_a, arm=arm, margin=margin, mid=mid, kind_bounds=rows,
     )
 
 
@@ -161,7 +164,11 @@ def _band(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndarray]
 def project(
     actions: np.ndarray, reference: Reference, dt_s: float, limits: JointLimits
 ) -> Projection:
-    """Project ``actions`` (H×D) into the limits, starting from ``reference``."""
+    """Project ``actions`` (H×D) into the limits, starting from ``reference``.
+
+    Both must be finite: admission refuses a non-finite chunk before planning, and the core
+    keeps its last valid state when a measurement is not finite.
+    """
     if actions.ndim != 2 or actions.shape[1] != limits.dim:
         raise ValueError(f"actions of shape {actions.shape} for {limits.dim} limits")
     bounds = _bounds(limits, dt_s)
@@ -183,8 +190,8 @@ def project(
         flags = violating[:, joint]
         first = int(np.argmax(flags))
         last = int(flags.shape[0] - 1 - np.argmax(flags[::-1]))
-        recoverable &= _project_joint(projected, joint, (first, last), reference,
-                                      bounds.v_step, bounds.a_step, limits)
+        recoverable &= _project_joint(projected, joint, (first, last), reference, bounds,
+                                      limits)
     distances = np.abs(projected - actions).max(axis=1)
     projected.setflags(write=False)
     return Projection(projected, distances, recoverable, float(distances.max()))
@@ -243,7 +250,7 @@ def _violations(actions: np.ndarray, ref: Reference, b: _Bounds) -> np.ndarray:
 
 def _project_joint(
     projected: np.ndarray, joint: int, violations: tuple[int, int], ref: Reference,
-    v_step: np.ndarray, a_step: np.ndarray, limits: JointLimits,
+    bounds: _Bounds, limits: JointLimits,
 ) -> bool:
     """Exact sequential projection of one joint from its first violating row on; False if the
     start cannot be continued inside the limits.
@@ -251,10 +258,13 @@ def _project_joint(
     Once the projected joint is back on the proposal (same position, same step) after the last
     row that violated anything, the rest of the proposal is feasible as it stands and is left
     untouched: a chunk that only needs a ramp-up from rest costs a few rows, not the horizon.
+    The braking bound is worked out only within ``margin`` of a limit: further away it is
+    larger than the velocity bound (``max_step_toward(margin) > v_step``), so it cannot bind.
     """
     first, last = violations
     lo, hi = float(limits.lower[joint]), float(limits.upper[joint])
-    vmax, acc = float(v_step[joint]), float(a_step[joint])
+    vmax, acc = float(bounds.v_step[joint]), float(bounds.a_step[joint])
+    near = float(bounds.margin[joint])
     column = projected[:, joint]
     original = column.tolist()  # plain floats: one conversion, not one numpy scalar per row
     values = list(original)
@@ -268,8 +278,11 @@ def _project_joint(
     for row in range(first, len(values)):
         if row > last and _on_proposal(p, s, original, row, start):
             break
-        low = max(-vmax, s - acc, -max_step_toward(p - lo, acc))
-        high = min(vmax, s + acc, max_step_toward(hi - p, acc))
+        low, high = max(-vmax, s - acc), min(vmax, s + acc)
+        if p - lo < near:
+            low = max(low, -max_step_toward(p - lo, acc))
+        if hi - p < near:
+            high = min(high, max_step_toward(hi - p, acc))
         if low > high + _EPS:
             # The reference itself cannot be continued inside the limits: brake as hard as
             # allowed and let the caller refuse the chunk.

@@ -175,6 +175,20 @@ def test_the_fast_check_allows_for_the_rate_tolerance_on_a_slow_axis() -> None:
     assert fast_check(case) == check_sequence(case.actions, case.ref, case.dt, case.limits)
 
 
+@pytest.mark.parametrize("outside", [0.0, 1e-6, 0.004])
+def test_cruising_into_a_limit_brakes_in_time(outside: float) -> None:
+    """Full speed toward a limit from just beyond the braking margin: the braking bound must
+    take over from the first row that needs it (it is only worked out near a limit)."""
+    dt, limits = 0.01, uniform()  # v_step 0.01, a_step 0.001, position ±1
+    v_step = 0.01
+    start = 1.0 - _bounds(limits, dt).margin[0] - outside
+    ref = Reference(np.array([start]), np.array([v_step]))
+    proposal = start + v_step * np.arange(1, 31, dtype=float)[:, None]
+    result = project(proposal, ref, dt, limits)
+    assert result.recoverable
+    assert check_sequence(result.actions, ref, dt, limits)
+
+
 def test_a_chunk_of_the_wrong_width_is_an_error_not_a_broadcast() -> None:
     with pytest.raises(ValueError, match="shape"):
         project(np.zeros((2, 1)), Reference(np.zeros(6), np.zeros(6)), 0.01,
