@@ -31,6 +31,7 @@ from assurance.limits import JointLimits
 _EPS = 1e-9
 _ROUNDING_ULPS = 8
 """Rounding of the band's bounds, centre, half-width and of ``x − mid``: under 4 ulps in all."""
+_ULP = float(np.finfo(float).eps)
 
 
 class Projection(msgspec.Struct, frozen=True, eq=False):
@@ -64,7 +65,10 @@ def max_step_toward(room: float, acc: float) -> float:
     """The largest step ``s`` with ``g(s) <= room`` (inverse of the braking reach)."""
     if room <= 0.0 or math.isinf(room) or math.isinf(acc):
         return room
-    m = math.floor((-1.0 + math.sqrt(1.0 + 8.0 * room / acc)) / 2.0)
+    ratio = 8.0 * room / acc
+    if math.isinf(ratio):  # an astronomical room: the continuous inverse, a lower bound
+        return max(0.0, math.sqrt(2.0 * acc) * math.sqrt(room) - acc)
+    m = math.floor((-1.0 + math.sqrt(1.0 + ratio)) / 2.0)
     return (room + acc * m * (m + 1) / 2.0) / (m + 1)
 
 
@@ -114,7 +118,7 @@ def _bounds(limits: JointLimits, dt_s: float) -> _Bounds:
     cached = _bounds_cache.get(key)
     if cached is not None and cached[0] is limits:
         return cached[1]
-    with np.errstate(invalid="ignore"):  # infinite limits: NaN bands are replaced below
+    with np.errstate(invalid="ignore", over="ignore"):  # inf and NaN are replaced below
         bounds = _derive_bounds(limits, dt_s)
     if len(_bounds_cache) > 64:  # a handful of (limits, dt) pairs in any real run
         _bounds_cache.clear()
@@ -133,6 +137,9 @@ def _derive_bounds(limits: JointLimits, dt_s: float) -> _Bounds:
     top = v_step + _EPS
     m = np.floor(top * inv_a)
     margin = np.where(np.isfinite(v_step), top + m * top - a_finite * m * (m + 1) / 2, np.inf)
+    # A few ulps wider, so that rounding never skips a braking bound that binds; and no margin
+    # at all (∞) where v_step²/a_step overflows into NaN.
+    margin = np.where(np.isnan(margin), np.inf, margin * (1.0 + _ROUNDING_ULPS * _ULP))
     arm = limits.arm_mask
     lower = np.where(arm, limits.lower + margin, limits.lower)
     upper = np.where(arm, limits.upper - margin, limits.upper)
@@ -154,7 +161,7 @@ def _band(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     limits like ±1e300 it must not admit what the limits refuse.
     """
     unbounded = np.isneginf(lower) & np.isposinf(upper)
-    rounding = _ROUNDING_ULPS * np.finfo(float).eps * np.maximum(np.abs(lower), np.abs(upper))
+    rounding = _ROUNDING_ULPS * _ULP * np.maximum(np.abs(lower), np.abs(upper))
     mid = np.where(unbounded, 0.0, (lower + upper) / 2)
     half = np.where(unbounded, np.inf, (upper - lower) / 2 - rounding)
     usable = unbounded | (np.isfinite(mid) & (half >= 0))

@@ -6,6 +6,7 @@ step) and braking (from every setpoint the joint can still stop inside its limit
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -187,6 +188,23 @@ def test_cruising_into_a_limit_brakes_in_time(outside: float) -> None:
     result = project(proposal, ref, dt, limits)
     assert result.recoverable
     assert check_sequence(result.actions, ref, dt, limits)
+
+
+def test_an_astronomical_room_gives_a_braking_bound_not_an_overflow() -> None:
+    assert 0.0 < max_step_toward(1e308, 1e-6) < math.inf
+    limits = JointLimits(np.array([-1e308]), np.array([1e308]), np.array([1.0]),
+                         np.array([1.0]))
+    result = project(np.array([[0.5]]), at_rest(), 0.01, limits)  # a jump: ramped, not raised
+    assert result.actions[0, 0] == pytest.approx(1e-4)
+
+
+def test_braking_still_binds_where_its_margin_overflows() -> None:
+    """v_step²/a_step overflows the margin into NaN: the braking bound is then always worked
+    out, and a state that cannot brake in time is still reported (found by review)."""
+    limits = JointLimits(np.array([-1e8]), np.array([1e7]), np.array([1e7]), np.array([1e-297]))
+    ref = Reference(np.zeros(1), np.array([1e3]))
+    result = project(np.array([[1e3], [2e3], [3e3]]), ref, 0.1, limits)
+    assert not result.recoverable
 
 
 def test_a_chunk_of_the_wrong_width_is_an_error_not_a_broadcast() -> None:
