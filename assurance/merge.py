@@ -77,7 +77,7 @@ def plan_merge(queue: ActionQueue, inputs: MergeInputs, limits: JointLimits) -> 
     rows, first_due = rows[skip:], first_due + skip * dt
     displaced = queue.rows_from(cut_at) if cut_at is not None else 0
     reference = _reference(queue, first_due, dt, inputs, cut_at, limits)
-    projection = project(rows, reference, dt * 1e-9, limits) if rows.shape[0] else _empty(rows)
+    projection = project(rows, reference, dt * 1e-9, limits)
     segment = _segment(inputs, projection, reference, first_due, dt, timing.trim + skip)
     return MergePlan(segment, policy, cut_at, displaced, blended, projection, older, timing.trim)
 
@@ -136,7 +136,3 @@ def _segment(
         t_obs=inputs.t_obs, expires_at=inputs.timing.expires_at, first_due=first_due, dt=dt,
         actions=projection.actions, first_index=first_index, ref_q=reference.q,
     )
-
-
-def _empty(rows: np.ndarray) -> Projection:
-    return Projection(rows, np.zeros(0), True)

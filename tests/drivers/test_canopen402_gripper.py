@@ -317,14 +317,21 @@ def udp_cell() -> Iterator[tuple[str, int, tuple[str, int]]]:
         yield group, port, ("127.0.0.1", int(process.info["fault_port"]))
 
 
-async def test_gripper_node_flag_over_udp_multicast(
+async def _udp_driver(
     udp_cell: tuple[str, int, tuple[str, int]],
-) -> None:
+) -> tuple[ManagedDriver, CiA402Settings, tuple[str, int]]:
+    """An active driver on the emulator process's bus, its faults cleared first."""
     group, port, address = udp_cell
     inject(address, "clear")
     settings = arm.driver_settings("udp_multicast", group, udp_port=port, gripper_node=GRIPPER,
                                    reset_faults_on_connect=True)
-    driver = await _active(settings)
+    return await _active(settings), settings, address
+
+
+async def test_gripper_node_flag_over_udp_multicast(
+    udp_cell: tuple[str, int, tuple[str, int]],
+) -> None:
+    driver, _, address = await _udp_driver(udp_cell)
     try:
         await _grip(driver, 0.025, 0.2)
         assert (await driver.read()).gripper == pytest.approx(0.025, abs=COUNT_M)
@@ -343,11 +350,7 @@ async def test_a_stalled_event_loop_is_not_a_silent_drive(
     the application held the loop up longer than the heartbeat timeout (the cell spawns its
     policy server on it), the heartbeats are there but not yet read. Seen in the live cell with
     the gripper drive; a drive that is really silent is still LINK_LOST (next test)."""
-    group, port, address = udp_cell
-    inject(address, "clear")
-    settings = arm.driver_settings("udp_multicast", group, udp_port=port, gripper_node=GRIPPER,
-                                   reset_faults_on_connect=True)
-    driver = await _active(settings)
+    driver, settings, _ = await _udp_driver(udp_cell)
     try:
         for _ in range(2):
             time.sleep(2.5 * settings.heartbeat_timeout_ms / 1000)  # blocks the loop on purpose
@@ -362,11 +365,7 @@ async def test_a_stalled_event_loop_is_not_a_silent_drive(
 async def test_a_silent_gripper_over_udp_is_still_link_lost(
     udp_cell: tuple[str, int, tuple[str, int]],
 ) -> None:
-    group, port, address = udp_cell
-    inject(address, "clear")
-    settings = arm.driver_settings("udp_multicast", group, udp_port=port, gripper_node=GRIPPER,
-                                   reset_faults_on_connect=True)
-    driver = await _active(settings)
+    driver, _, address = await _udp_driver(udp_cell)
     try:
         inject(address, "heartbeat_stop", node=GRIPPER)
         error = await _until_error(driver)

@@ -32,6 +32,7 @@ from drivers.dynamixel.settings import DynamixelSettings
 from drivers.dynamixel.units import RAD_PER_TICK
 from drivers.lifecycle import ManagedDriver
 from stubs.dynamixel_bus.launch import WIDE_TIMING, BusEmulator
+from tests.drivers.support import active
 
 IDS = (1, 2, 3, 4, 5, 6)
 PERIOD_S = 0.004
@@ -55,15 +56,8 @@ def settings(port: str, **overrides: Any) -> DynamixelSettings:
     return DynamixelSettings(port=port, **{**WIDE_TIMING, **overrides})
 
 
-@contextlib.asynccontextmanager
-async def active_driver(port: str, **overrides: Any) -> Any:
-    driver = ManagedDriver(DynamixelDriver(settings(port, **overrides)))
-    try:
-        await driver.configure(CONTROL)
-        await driver.activate()
-        yield driver
-    finally:
-        await driver.aclose()
+def active_driver(port: str, **overrides: Any) -> contextlib.AbstractAsyncContextManager:
+    return active(DynamixelDriver(settings(port, **overrides)), CONTROL)
 
 
 @contextlib.contextmanager

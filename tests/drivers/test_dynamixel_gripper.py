@@ -33,6 +33,7 @@ from drivers.lifecycle import ManagedDriver
 from drivers.settings import SettingsError
 from stubs.dynamixel_bus.__main__ import parse_args
 from stubs.dynamixel_bus.launch import WIDE_TIMING, BusEmulator
+from tests.drivers.support import active
 
 IDS = (1, 2, 3, 4, 5, 6)
 GRIPPER = 7
@@ -61,15 +62,8 @@ def settings(port: str, **overrides: Any) -> DynamixelSettings:
     return DynamixelSettings(port=port, **{"gripper_id": GRIPPER, **WIDE_TIMING, **overrides})
 
 
-@contextlib.asynccontextmanager
-async def active_driver(port: str, **overrides: Any) -> Any:
-    driver = ManagedDriver(DynamixelDriver(settings(port, **overrides)))
-    try:
-        await driver.configure(CONTROL)
-        await driver.activate()
-        yield driver
-    finally:
-        await driver.aclose()
+def active_driver(port: str, **overrides: Any) -> contextlib.AbstractAsyncContextManager:
+    return active(DynamixelDriver(settings(port, **overrides)), CONTROL)
 
 
 def read_servo(port_path: str, dxl_id: int, address: int, size: int) -> int:

@@ -11,12 +11,9 @@ from __future__ import annotations
 
 import asyncio
 import json
-import os
-import subprocess
 import sys
 import time
 from collections.abc import Iterator
-from pathlib import Path
 
 import pytest
 
@@ -27,8 +24,8 @@ from drivers.ur_rtde.driver import URRTDEDriver
 from drivers.ur_rtde.settings import URSettings
 from stubs.fault_control import inject
 from stubs.ur_controller.launch import EmulatedController
+from tests.drivers.support import run_script
 
-ROOT = Path(__file__).resolve().parents[2]
 CONTROL = ControlConfig(dof=6, period_ns=2_000_000, q_lower=(-6.28,) * 6, q_upper=(6.28,) * 6,
                         v_max=(3.14,) * 6)
 CHILD_TIMEOUT_S = 60.0
@@ -59,12 +56,8 @@ def test_the_client_process_survives_and_reports_the_reason(
 ) -> None:
     emulator.clear()
     try:
-        child = subprocess.run(
-            [sys.executable, __file__, emulator.host, str(emulator.info["control_port"]), fault,
-             str(silent_s)],
-            capture_output=True, text=True, timeout=CHILD_TIMEOUT_S, cwd=ROOT,
-            env={**os.environ, "PYTHONPATH": str(ROOT)},
-        )
+        child = run_script(__file__, emulator.host, emulator.info["control_port"], fault,
+                           silent_s, timeout_s=CHILD_TIMEOUT_S)
     finally:
         emulator.clear()
     assert child.returncode == 0, f"client exited {child.returncode}:\n{child.stderr[-2000:]}"

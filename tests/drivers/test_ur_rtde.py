@@ -23,6 +23,7 @@ from drivers.lifecycle import ManagedDriver
 from drivers.ur_rtde.driver import URRTDEDriver
 from drivers.ur_rtde.settings import URSettings
 from stubs.ur_controller.launch import EmulatedController
+from tests.drivers.support import active
 
 PERIOD_S = 0.002
 LIMIT = 3.0
@@ -39,13 +40,8 @@ def emulator() -> Iterator[EmulatedController]:
 @pytest_asyncio.fixture(scope="module", loop_scope="module")
 async def shared_arm(emulator: EmulatedController) -> AsyncIterator[ManagedDriver]:
     emulator.clear()
-    driver = ManagedDriver(URRTDEDriver(URSettings(host=emulator.host), name="ur5e"))
-    try:
-        await driver.configure(CONTROL)
-        await driver.activate()
-        yield driver
-    finally:
-        await driver.aclose()
+    async with active(URRTDEDriver(URSettings(host=emulator.host), name="ur5e"), CONTROL) as arm:
+        yield arm
 
 
 @pytest_asyncio.fixture(loop_scope="module")

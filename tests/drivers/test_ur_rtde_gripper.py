@@ -25,6 +25,7 @@ from drivers.ur_rtde.driver import URRTDEDriver
 from drivers.ur_rtde.settings import URSettings
 from stubs.fault_control import inject
 from stubs.ur_controller.launch import EmulatedController
+from tests.drivers.support import active
 
 CONTROL = ControlConfig(dof=6, period_ns=2_000_000, q_lower=(-6.28,) * 6, q_upper=(6.28,) * 6,
                         v_max=(3.14,) * 6)
@@ -65,13 +66,8 @@ def emulator() -> Iterator[EmulatedController]:
 @pytest_asyncio.fixture(scope="module", loop_scope="module")
 async def shared_arm(emulator: EmulatedController) -> AsyncIterator[ManagedDriver]:
     emulator.clear()
-    driver = ManagedDriver(URRTDEDriver(gripper_settings(emulator.host), name="ur5e"))
-    try:
-        await driver.configure(CONTROL)
-        await driver.activate()
-        yield driver
-    finally:
-        await driver.aclose()
+    async with active(URRTDEDriver(gripper_settings(emulator.host), name="ur5e"), CONTROL) as arm:
+        yield arm
 
 
 @pytest_asyncio.fixture(loop_scope="module")

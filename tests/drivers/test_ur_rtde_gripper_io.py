@@ -12,14 +12,11 @@ from __future__ import annotations
 
 import asyncio
 import json
-import os
 import socket
 import struct
-import subprocess
 import sys
 import time
 from collections.abc import Callable, Iterator
-from pathlib import Path
 from typing import Any
 
 import pytest
@@ -33,6 +30,7 @@ from drivers.ur_rtde.driver import URRTDEDriver
 from drivers.ur_rtde.settings import URSettings
 from stubs.fault_control import inject
 from stubs.ur_controller.launch import EmulatedController
+from tests.drivers.support import run_script
 from tests.drivers.test_ur_rtde_gripper import (
     CLOSED,
     CONTROL,
@@ -45,7 +43,6 @@ from tests.drivers.test_ur_rtde_gripper import (
     state_of,
 )
 
-ROOT = Path(__file__).resolve().parents[2]
 CHILD_TIMEOUT_S = 60.0
 
 # The 16 input recipes ur_rtde 1.6.5's RTDEIOInterface sets up, in its order (lower range).
@@ -132,11 +129,8 @@ def test_gripper_survives_link_loss_and_the_client_process_too(
     emulator: EmulatedController,
 ) -> None:
     try:
-        child = subprocess.run(
-            [sys.executable, __file__, emulator.host, str(emulator.info["control_port"])],
-            capture_output=True, text=True, timeout=CHILD_TIMEOUT_S, cwd=ROOT,
-            env={**os.environ, "PYTHONPATH": str(ROOT)},
-        )
+        child = run_script(__file__, emulator.host, emulator.info["control_port"],
+                           timeout_s=CHILD_TIMEOUT_S)
     finally:
         emulator.clear()
     assert child.returncode == 0, f"client exited {child.returncode}:\n{child.stderr[-2000:]}"
