@@ -14,8 +14,8 @@ import sys
 
 import uvloop
 
-from assurance.envelope import ReplacementPolicy
 from stubs.policy_server.config import DEFAULT_GOAL, ServerConfig
+from stubs.policy_server.envelope import ReplacementPolicy
 from stubs.policy_server.faults import FaultConfig
 from stubs.policy_server.policy import LatencyModel
 from stubs.policy_server.server import PolicyServer

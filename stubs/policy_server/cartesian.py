@@ -11,14 +11,14 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 
-from assurance.cartesian import BASE_DELTA, POSE_UNITS
 from assurance.kinematics import ArmKinematics
+from stubs.policy_server.envelope import ActionFrame, ActionUnits
 
 
 class CartesianOutput:
     def __init__(self, units: str) -> None:
         self.kinematics = ArmKinematics()
-        self.rotations = units == POSE_UNITS
+        self.rotations = units == ActionUnits.METRES_RADIANS
 
     def __call__(self, q_obs: np.ndarray, joint_actions: np.ndarray) -> np.ndarray:
         """One row per action: TCP displacement (and rotation) from the pose at ``q_obs``."""
@@ -36,4 +36,4 @@ class CartesianOutput:
 
 def output_for(frame: str, units: str) -> CartesianOutput | None:
     """What turns the policy's joint path into the session's actions (None: joint actions)."""
-    return CartesianOutput(units) if frame == BASE_DELTA else None
+    return CartesianOutput(units) if frame == ActionFrame.BASE_DELTA else None

@@ -11,11 +11,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from assurance.envelope import ReplacementPolicy
-from assurance.handshake import HandshakeOffer
-from kernel.wire import PROTOCOL_RANGE
+from stubs.policy_server.envelope import ChunkSource, ReplacementPolicy
 from stubs.policy_server.faults import FaultConfig
+from stubs.policy_server.handshake import HandshakeOffer
 from stubs.policy_server.policy import InsertionPolicy, LatencyModel
+from stubs.policy_server.protocol import PROTOCOL_RANGE
 
 DEFAULT_START = (0.0, -1.2, 1.5, -1.87, -1.57, 0.0)
 DEFAULT_GOAL = (0.1, -1.35, 1.7, -1.92, -1.57, 0.05)
@@ -72,6 +72,19 @@ class ServerConfig:
             chunk_horizon=self.horizon, protocol=self.protocol, skill=self.skill,
             skill_version=self.skill_version, controller_mode=self.controller_mode,
             calibration_epoch=self.calibration_epoch, queue_epoch=queue_epoch,
+        )
+
+    def chunk_source(self) -> ChunkSource:
+        """What every chunk repeats; the ``checkpoint`` fault claims another checkpoint."""
+        return ChunkSource(
+            policy_checkpoint=self.faults.checkpoint or self.policy_checkpoint,
+            config_hash=self.config_hash, skill=self.skill, skill_version=self.skill_version,
+            controller_mode=self.controller_mode, calibration_epoch=self.calibration_epoch,
+            action_units=self.action_units, action_frame=self.action_frame,
+            action_dt_ns=round(self.action_dt_ms * 1e6),
+            max_observation_age_ns=round(self.max_observation_age_ms * 1e6),
+            max_action_age_ns=round(self.max_action_age_ms * 1e6),
+            replacement_policy=self.replacement_policy,
         )
 
     def policy(self) -> InsertionPolicy:

@@ -26,8 +26,8 @@ from dataclasses import dataclass, fields
 
 import msgspec
 
-from assurance.envelope import ArrayPayload, WireChunk
-from kernel.wire import MAX_FRAME_BYTES, encode_chunk_body, encode_raw
+from stubs.policy_server.envelope import ChunkEnvelope, chunk_body_frame, encode_chunk_body
+from stubs.policy_server.protocol import MAX_FRAME_BYTES, ArrayPayload, encode_raw
 
 _FRACTIONS = ("drop", "duplicate", "reorder", "spike", "garbage", "nonfinite", "wrong_dim")
 
@@ -122,12 +122,12 @@ class FaultPlan:
 # -- bad frames --------------------------------------------------------------------------------
 
 
-def garbage_chunk_body(wire: WireChunk) -> bytes:
+def garbage_chunk_body(chunk: ChunkEnvelope) -> bytes:
     """A chunk body that decodes as MessagePack but not as a chunk: its action bytes are cut
     short, so the client can still name the chunk it refuses."""
-    actions = wire.actions
+    actions = chunk.actions
     short = ArrayPayload(dtype=actions.dtype, shape=actions.shape, data=actions.data[:-3])
-    return msgspec.msgpack.encode(msgspec.structs.replace(wire, actions=short))
+    return encode_chunk_body(msgspec.structs.replace(chunk, actions=short))
 
 
 def garbage_frame() -> bytes:
@@ -136,7 +136,7 @@ def garbage_frame() -> bytes:
 
 
 def oversized_frame() -> bytes:
-    return encode_chunk_body(msgspec.msgpack.encode(b"\x00" * (MAX_FRAME_BYTES + 1)))
+    return chunk_body_frame(msgspec.msgpack.encode(b"\x00" * (MAX_FRAME_BYTES + 1)))
 
 
 def unknown_type_frame() -> bytes:

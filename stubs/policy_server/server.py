@@ -1,7 +1,9 @@
-"""The reference policy server: the other end of ``kernel/wire.py``, with fault injection.
+"""The reference policy server: warden's policy-link peer, with fault injection.
 
-It speaks the protocol honestly (clock pings answered from its own, deliberately offset clock;
-a handshake offer; chunks only after the client's ``ACCEPT``; heartbeats both ways) and fills
+It speaks ``docs/protocol.md`` through its own codec (``protocol.py``, ``handshake.py``,
+``envelope.py``), never warden's, so a mistake in one side's codec is not copied into the
+other. It speaks it honestly (clock pings answered from its own, deliberately offset clock; a
+handshake offer; chunks only after the client's ``ACCEPT``; heartbeats both ways) and fills
 every envelope field, so the robot side is exercised the way a real policy server would
 exercise it. ``faults.py`` makes it misbehave on purpose.
 """
@@ -9,24 +11,37 @@ exercise it. ``faults.py`` makes it misbehave on purpose.
 from __future__ import annotations
 
 import asyncio
-import hashlib
 import itertools
 import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-import msgspec
 import numpy as np
 from websockets.asyncio.server import Server, ServerConnection
 from websockets.asyncio.server import serve as ws_serve
 from websockets.exceptions import ConnectionClosed
 
-from assurance.envelope import ArrayPayload, StateFingerprint, WireChunk
-from assurance.handshake import HandshakeOffer, fingerprint
-from kernel.wire import (
+from stubs.policy_server.cartesian import output_for
+from stubs.policy_server.config import ServerConfig
+from stubs.policy_server.envelope import (
+    ChunkEnvelope,
+    Proposal,
+    chunk_body_frame,
+    chunk_envelope,
+    encode_chunk_frame,
+)
+from stubs.policy_server.faults import (
+    ChunkFaults,
+    FaultPlan,
+    garbage_chunk_body,
+    garbage_frame,
+    oversized_frame,
+    unknown_type_frame,
+)
+from stubs.policy_server.handshake import HandshakeOffer, Verdict, fingerprint
+from stubs.policy_server.protocol import (
     MAX_FRAME_BYTES,
-    SERVER_CLOCK_DOMAIN,
     Bye,
     ByeReason,
     ClockPing,
@@ -40,22 +55,12 @@ from kernel.wire import (
     Observation,
     Offer,
     ProtocolViolation,
+    array_payload,
     decode_body,
     decode_frame,
     encode,
-    encode_chunk_body,
     message_type,
     payload_vector,
-)
-from stubs.policy_server.cartesian import output_for
-from stubs.policy_server.config import ServerConfig
-from stubs.policy_server.faults import (
-    ChunkFaults,
-    FaultPlan,
-    garbage_chunk_body,
-    garbage_frame,
-    oversized_frame,
-    unknown_type_frame,
 )
 
 
@@ -92,6 +97,7 @@ class PolicyServer:
         self.policy = config.policy()
         self.output = output_for(config.action_frame, config.action_units)
         self.faults = FaultPlan(config.faults)
+        self.source = config.chunk_source()
         self.rng = np.random.default_rng(config.seed)
         self.history: deque[tuple[int, bytes]] = deque(maxlen=64)
         """(epoch, frame) of every chunk produced, sent or not: what a resend can replay."""
@@ -238,7 +244,7 @@ class _Connection:
         self.decided = True
         self.stats.decisions.append(message)
         decision = message.decision
-        if decision.decision != "ACCEPT":
+        if decision.decision is not Verdict.ACCEPT:
             return  # the client closes; nothing may be sent for a rejected session
         if decision.protocol is None:
             raise ProtocolViolation("an ACCEPT without a protocol version")
@@ -275,7 +281,7 @@ class _Connection:
         await self._deliver(self._chunk(observation, q, t_arrival, t_start, plan), plan)
 
     def _chunk(self, observation: Observation, q: np.ndarray, t_arrival: int, t_start: int,
-               plan: ChunkFaults) -> WireChunk:
+               plan: ChunkFaults) -> ChunkEnvelope:
         cfg = self.config
         # Observation time in this server's clock: the client's measured offset (protocol 2)
         # translates it; without one, the arrival time is the best this side knows.
@@ -292,27 +298,19 @@ class _Connection:
         epoch = observation.queue_epoch
         sequence = self.server.next_sequence(epoch)
         now = self.server.now_ns()
-        return WireChunk(
+        return chunk_envelope(self.server.source, Proposal(
             chunk_id=f"{cfg.server_id}-e{epoch}-s{sequence}", sequence=sequence,
-            queue_epoch=epoch, policy_checkpoint=cfg.faults.checkpoint or cfg.policy_checkpoint,
-            config_hash=cfg.config_hash, skill=cfg.skill, skill_version=cfg.skill_version,
-            task_phase=observation.task_phase, controller_mode=cfg.controller_mode,
-            calibration_epoch=cfg.calibration_epoch, observation_id=observation.observation_id,
-            first_action_time=t_obs + cfg.lead_ns, action_dt=round(cfg.action_dt_ms * 1e6),
-            actions=ArrayPayload.from_array(actions), observation_event_time=t_obs,
-            observation_arrival_time=t_arrival, clock_domain=SERVER_CLOCK_DOMAIN,
-            inference_start=t_start, inference_end=now, server_send=now,
-            max_observation_age=round(cfg.max_observation_age_ms * 1e6),
-            max_action_age=round(cfg.max_action_age_ms * 1e6),
-            state_fingerprint=_state_fingerprint(q),
-            replacement_policy=cfg.replacement_policy, fallback_id="safe_hold",
-            action_units=cfg.action_units, action_frame=cfg.action_frame,
-        )
+            queue_epoch=epoch, task_phase=observation.task_phase,
+            observation_id=observation.observation_id, observed_q=q, actions=actions,
+            first_action_time=t_obs + cfg.lead_ns, observation_event_time=t_obs,
+            observation_arrival_time=t_arrival, inference_start=t_start, inference_end=now,
+            server_send=now,
+        ))
 
-    async def _deliver(self, wire: WireChunk, plan: ChunkFaults) -> None:
-        body = garbage_chunk_body(wire) if plan.garbage else msgspec.msgpack.encode(wire)
-        frame = encode_chunk_body(body)
-        self.server.history.append((wire.queue_epoch, frame))
+    async def _deliver(self, chunk: ChunkEnvelope, plan: ChunkFaults) -> None:
+        frame = (chunk_body_frame(garbage_chunk_body(chunk)) if plan.garbage
+                 else encode_chunk_frame(chunk))
+        self.server.history.append((chunk.queue_epoch, frame))
         self.stats.chunks_produced += 1
         if self.stalled or plan.drop:
             self.stats.chunks_dropped += 1
@@ -348,10 +346,9 @@ class _Connection:
         q = np.asarray(self.config.goal, dtype=float)
         observation = Observation(
             observation_id="unsolicited", t_event=0, queue_epoch=epoch, task_phase="FREE_SPACE",
-            q=ArrayPayload.from_array(q))
+            q=array_payload(q))
         now = self.server.now_ns()
-        return encode_chunk_body(msgspec.msgpack.encode(
-            self._chunk(observation, q, now, now, ChunkFaults())))
+        return encode_chunk_frame(self._chunk(observation, q, now, now, ChunkFaults()))
 
     # -- sending ---------------------------------------------------------------------------
 
@@ -368,7 +365,3 @@ class _Connection:
         except ConnectionClosed as error:
             raise _Closed(None) from error
 
-
-def _state_fingerprint(q: np.ndarray) -> StateFingerprint:
-    digest = hashlib.blake2b(np.ascontiguousarray(q, dtype="<f8").tobytes(), digest_size=8)
-    return StateFingerprint(q=tuple(float(v) for v in q), hash=digest.hexdigest())

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from assurance.envelope import ArrayPayload, Chunk, MalformedChunk, WireChunk, decode_wire_chunk
-from assurance.handshake import HandshakeDecision
+from assurance.handshake import HandshakeDecision, HandshakeOffer
 from kernel.core.config import ClientSide
 from kernel.wire import (
     MAX_FRAME_BYTES,
@@ -34,7 +34,7 @@ from kernel.wire import (
     payload_vector,
     vector_payload,
 )
-from stubs.policy_server import ServerConfig
+from stubs.policy_server.envelope import ChunkEnvelope
 from stubs.policy_server.faults import garbage_chunk_body, garbage_frame, oversized_frame
 
 SIDE = ClientSide(skill="peg_insert", skill_version="3.1.0", observation_keys=("joint_pos",),
@@ -44,7 +44,10 @@ SIDE = ClientSide(skill="peg_insert", skill_version="3.1.0", observation_keys=("
 
 MESSAGES = [
     Hello(client_id="r1", protocol=(1, 2), hello=SIDE.hello(3)),
-    Offer(server_id="s1", offer=ServerConfig().offer(3)),
+    Offer(server_id="s1", offer=HandshakeOffer(
+        policy_checkpoint="act-insert-2026-07", config_hash="cfg-9f2c",
+        observation_keys=("joint_pos",), action_dim=6, action_units="rad", action_frame="joint",
+        chunk_horizon=20, protocol=(1, 2), skill="peg_insert", queue_epoch=3)),
     Decision(decision=HandshakeDecision(decision="ACCEPT", fingerprint="ab", protocol=2),
              queue_epoch=4),
     ClockPing(seq=1, t0=10), ClockPong(seq=1, t0=10, t_server=-5),
@@ -72,7 +75,8 @@ def test_chunk_body_reaches_the_envelope_decoder_unchanged() -> None:
 
 
 def test_broken_chunk_body_is_attributable_and_malformed() -> None:
-    frame = decode_frame(encode_raw(MessageType.CHUNK, garbage_chunk_body(_wire_chunk())))
+    peer_chunk = msgspec.msgpack.decode(msgspec.msgpack.encode(_wire_chunk()), type=ChunkEnvelope)
+    frame = decode_frame(encode_raw(MessageType.CHUNK, garbage_chunk_body(peer_chunk)))
     chunk = decode_wire_chunk(frame.body, 5)
     assert isinstance(chunk, MalformedChunk)
     assert chunk.chunk_id == "c1"
