@@ -7,9 +7,10 @@ leaves the joint limits, a Cartesian-delta helper for pre-contact proposals expr
 Pure: no I/O, threads or clocks. An :class:`ArmKinematics` owns one Pinocchio ``Data``
 scratch buffer, so use one instance per thread.
 
-The model comes from ``pin.buildModelFromMJCF`` on the arm file; every joint that is not an
-arm joint (the gripper's fingers) is locked at its neutral value with
-``pin.buildReducedModel``, so the kinematic state is exactly the six arm angles.
+The model is handed in: the kernel reads the robot model file the manifest names (MJCF or
+URDF) into a ``pin.Model``; here every joint that is not an arm joint (a gripper's fingers) is
+locked at its neutral value with ``pin.buildReducedModel``, so the kinematic state is exactly
+the arm's angles.
 """
 
 from __future__ import annotations
@@ -19,12 +20,9 @@ import operator
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from enum import StrEnum
-from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
-
-from stubs.robot_model import ARM_JOINT_NAMES, ARM_MODEL, TCP_SITE
 
 
 class JacobianFrame(StrEnum):
@@ -43,11 +41,15 @@ _PIN_FRAME = {
 }
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(frozen=True, slots=True, eq=False)
 class KinematicsConfig:
-    model_path: Path = ARM_MODEL
-    tcp_frame: str = TCP_SITE
-    arm_joints: tuple[str, ...] = ARM_JOINT_NAMES
+    model: pin.Model
+    """The robot's full kinematic model, as read from its model file."""
+    tcp_frame: str
+    arm_joints: tuple[str, ...]
+    """The arm's joints, base to tool; every other joint is locked at its neutral value."""
+    source: str = "robot model"
+    """Where the model came from (named in errors)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -143,12 +145,12 @@ class WorkspaceBox:
 class ArmKinematics:
     """FK, Jacobian and IK of the TCP frame of the arm model (see the module docstring)."""
 
-    def __init__(self, config: KinematicsConfig | None = None) -> None:
-        self.config = config or KinematicsConfig()
-        self.model = _arm_model(self.config)
+    def __init__(self, config: KinematicsConfig) -> None:
+        self.config = config
+        self.model = _arm_model(config)
         self._data = self.model.createData()
-        if not self.model.existFrame(self.config.tcp_frame):
-            raise ValueError(f"{self.config.model_path} has no frame {self.config.tcp_frame!r}")
+        if not self.model.existFrame(config.tcp_frame):
+            raise ValueError(f"{config.source} has no frame {config.tcp_frame!r}")
         self._frame = self.model.getFrameId(self.config.tcp_frame)
         self.lower = self.model.lowerPositionLimit.copy()
         self.upper = self.model.upperPositionLimit.copy()
@@ -293,11 +295,11 @@ class ArmKinematics:
 
 
 def _arm_model(config: KinematicsConfig) -> pin.Model:
-    full = pin.buildModelFromMJCF(str(config.model_path))
+    full = config.model
     names = [full.names[j] for j in range(1, full.njoints)]
     missing = [name for name in config.arm_joints if name not in names]
     if missing:
-        raise ValueError(f"{config.model_path} has no joints {missing}")
+        raise ValueError(f"{config.source} has no joints {missing}")
     locked = [full.getJointId(name) for name in names if name not in config.arm_joints]
     model = pin.buildReducedModel(full, locked, pin.neutral(full)) if locked else full
     if tuple(model.names[1:]) != tuple(config.arm_joints):

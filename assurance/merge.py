@@ -54,7 +54,30 @@ class MergeInputs(msgspec.Struct, frozen=True, eq=False):
     row before it any more (purged by a new epoch), so the new rows continue its motion."""
 
 
-def plan_merge(queue: ActionQueue, inputs: MergeInputs, limits: JointLimits) -> MergePlan:
+class MergeDraft(msgspec.Struct, frozen=True, eq=False):
+    """A merge worked out up to its feasibility projection: the rows that would be queued and
+    the setpoint they follow. Projecting ``rows`` from ``reference`` and :meth:`finish` make
+    the plan (the projection may run elsewhere: it is a pure function of these two)."""
+
+    rows: np.ndarray
+    reference: Reference
+    first_due: int
+    dt: int
+    merge: ReplacementPolicy
+    cut_at: int | None
+    displaced: int
+    blended: bool
+    older_than_queue: bool
+    first_index: int
+
+    def finish(self, projection: Projection, inputs: MergeInputs) -> MergePlan:
+        segment = _segment(inputs, projection, self.reference, self.first_due, self.dt,
+                           self.first_index)
+        return MergePlan(segment, self.merge, self.cut_at, self.displaced, self.blended,
+                         projection, self.older_than_queue, inputs.timing.trim)
+
+
+def draft_merge(queue: ActionQueue, inputs: MergeInputs, limits: JointLimits) -> MergeDraft:
     chunk, timing = inputs.chunk, inputs.timing
     dt = chunk.times["action_dt"] or 1
     first_due = int(timing.first_due or 0) + timing.trim * dt
@@ -77,9 +100,14 @@ def plan_merge(queue: ActionQueue, inputs: MergeInputs, limits: JointLimits) -> 
     rows, first_due = rows[skip:], first_due + skip * dt
     displaced = queue.rows_from(cut_at) if cut_at is not None else 0
     reference = _reference(queue, first_due, dt, inputs, cut_at, limits)
-    projection = project(rows, reference, dt * 1e-9, limits)
-    segment = _segment(inputs, projection, reference, first_due, dt, timing.trim + skip)
-    return MergePlan(segment, policy, cut_at, displaced, blended, projection, older, timing.trim)
+    return MergeDraft(rows, reference, first_due, dt, policy, cut_at, displaced, blended, older,
+                      timing.trim + skip)
+
+
+def plan_merge(queue: ActionQueue, inputs: MergeInputs, limits: JointLimits) -> MergePlan:
+    """The whole merge, its projection included."""
+    draft = draft_merge(queue, inputs, limits)
+    return draft.finish(project(draft.rows, draft.reference, draft.dt * 1e-9, limits), inputs)
 
 
 def _blend(

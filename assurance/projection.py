@@ -176,9 +176,29 @@ def project(
     Both must be finite: admission refuses a non-finite chunk before planning, and the core
     keeps its last valid state when a measurement is not finite.
     """
+    bounds = _bounds(limits, dt_s)
+    fast = _fast(actions, reference, bounds, limits)
+    if isinstance(fast, Projection):
+        return fast
+    return _exact(actions, fast, reference, bounds, limits)
+
+
+def project_fast(
+    actions: np.ndarray, reference: Reference, dt_s: float, limits: JointLimits
+) -> Projection | None:
+    """The projection when the proposal already satisfies every bound (nothing to move, a few
+    vectorized checks); None when some joint needs the exact, sequential projection, which
+    :func:`project` does (a caller can run that where it does not delay a control tick)."""
+    fast = _fast(actions, reference, _bounds(limits, dt_s), limits)
+    return fast if isinstance(fast, Projection) else None
+
+
+def _fast(
+    actions: np.ndarray, reference: Reference, bounds: _Bounds, limits: JointLimits
+) -> Projection | np.ndarray:
+    """The unchanged proposal when it is feasible as it stands, else its H×D violations."""
     if actions.ndim != 2 or actions.shape[1] != limits.dim:
         raise ValueError(f"actions of shape {actions.shape} for {limits.dim} limits")
-    bounds = _bounds(limits, dt_s)
     if not actions.size:
         return Projection(actions, np.zeros(0), True)
     band, zeros = bounds.band(actions.shape[0])
@@ -187,6 +207,13 @@ def project(
     violating = _violations(actions, reference, bounds)
     if not np.count_nonzero(violating):
         return Projection(actions, zeros, True)
+    return violating
+
+
+def _exact(
+    actions: np.ndarray, violating: np.ndarray, reference: Reference, bounds: _Bounds,
+    limits: JointLimits,
+) -> Projection:
     projected = actions.copy()
     recoverable = True
     for joint in np.flatnonzero(violating.any(axis=0)):

@@ -33,8 +33,17 @@ import numpy as np
 from assurance.envelope import decode_wire_chunk, to_wire
 from assurance.event_chunk import decode_event_chunk
 from bench.counters import Counters, open_counters
-from kernel.core.events import ChunkEvent, ObservationEvent, StateEvent, TickEvent
-from kernel.core.lines import encode
+from kernel.core.effects import Compute
+from kernel.core.events import (
+    ChunkEvent,
+    ComputedEvent,
+    Event,
+    ObservationEvent,
+    StateEvent,
+    TickEvent,
+)
+from kernel.core.jobs import run_job
+from kernel.core.lines import Line, encode
 from kernel.core.runtime import Core
 from kernel.scenario import Scenario
 from kernel.scenario.config import build_config
@@ -82,7 +91,7 @@ def _admission(
     decode_ns, json_ns, admit_ns, instructions, cycles = [], [], [], [], []
     for index in range(1, samples + 1):
         t_ms = index * 4.0
-        core.handle(ObservationEvent(t=round(t_ms * MS), observation_id=f"O{index}"))
+        core.step(ObservationEvent(t=round(t_ms * MS), observation_id=f"O{index}"))
         fields = _fields(index, t_ms, start, fast)
         chunk = decode_event_chunk(fields, round(t_ms * MS))
         frame = encoder.encode(to_wire(chunk))
@@ -93,7 +102,7 @@ def _admission(
         counts = counters.read() if counters else (0, 0)
         began = time.perf_counter_ns()
         decoded = decode_wire_chunk(frame, t)
-        lines = core.handle(ChunkEvent(t, decoded))
+        lines = _admit(core, ChunkEvent(t, decoded))
         admit_ns.append(time.perf_counter_ns() - began)
         if counters:
             after = counters.read()
@@ -101,13 +110,26 @@ def _admission(
             cycles.append(after[1] - counts[1])
         if index < 5 and lines[0].decision not in ("accepted", "replaced"):
             raise RuntimeError(f"benchmark chunk was refused: {lines[0]}")
-        core.tick(t)
+        core.step(TickEvent(t=t))
     figures = {"decode": _percentiles(decode_ns), "json": _percentiles(json_ns),
                "admit": _percentiles(admit_ns)}
     if counters:  # thousands, so that _percentiles' /1e3 leaves them in thousands
         figures["instructions"] = _percentiles(instructions)
         figures["cycles"] = _percentiles(cycles)
     return figures
+
+
+def _admit(core: Core, event: Event) -> tuple[Line, ...]:
+    """Every line an event leads to, running any job the core asks for at once (the cost of
+    the whole admission, wherever a live run would run its long part)."""
+    step = core.step(event)
+    lines = step.lines
+    for effect in step.effects:
+        if isinstance(effect, Compute):
+            config = core.config
+            result = run_job(effect.job, config.limits, config.cartesian)
+            lines += _admit(core, ComputedEvent(t=event.t, result=result))
+    return lines
 
 
 def _timed(fn: Callable[[], object]) -> int:
@@ -141,12 +163,12 @@ def _replay_speed(seconds: int) -> tuple[float, float, int]:
     core = Core(scenario.config)
     began = time.perf_counter()
     for event in timeline:
-        core.handle(event)
+        _admit(core, event)
     core_only = time.perf_counter() - began
     core = Core(scenario.config)
     began = time.perf_counter()
     for event in timeline:
-        for line in core.handle(event):
+        for line in _admit(core, event):
             encode(line)
     with_log = time.perf_counter() - began
     return seconds / core_only, seconds / with_log, ticks

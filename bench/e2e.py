@@ -26,7 +26,9 @@ import os
 import signal
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 if __package__ in (None, ""):  # run as a script: make the repository importable
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -39,7 +41,15 @@ from websockets.asyncio.server import serve
 
 from assurance.envelope import ArrayPayload, MalformedChunk, WireChunk, from_wire
 from assurance.handshake import ClientHello
-from kernel.core.events import ChunkEvent, Event, HandshakeEvent, ObservationEvent, StateEvent
+from kernel.core.effects import Setpoint, Step
+from kernel.core.events import (
+    ChunkEvent,
+    Event,
+    HandshakeEvent,
+    ObservationEvent,
+    StateEvent,
+    TickEvent,
+)
 from kernel.core.lines import ChunkLine, Line
 from kernel.core.runtime import Core
 from kernel.scenario.config import build_config
@@ -81,10 +91,11 @@ class _BenchGateway:
     def now_ns(self) -> int:
         return time.monotonic_ns()
 
-    def feed(self, event: Event) -> list[Line]:
+    def feed(self, event: Event) -> Step:
         if isinstance(event, ObservationEvent):
             self._observed[event.observation_id] = event.t
-        lines = self.core.handle(event)
+        step = self.core.step(event)
+        lines = step.lines
         if isinstance(event, ChunkEvent) and _admitted(lines):
             t_obs = self._observed.pop(event.chunk.observation_id)  # type: ignore[union-attr]
             self.latencies.append(time.monotonic_ns() - t_obs)
@@ -92,7 +103,11 @@ class _BenchGateway:
             self._next()
         elif any(isinstance(line, ChunkLine) for line in lines):
             raise RuntimeError(f"benchmark chunk refused: {lines}")
-        return lines
+        return step
+
+    def on(self, kind: type, handler: Callable[[Any], None]) -> None:
+        """The client registers for requests and session ends; this bench asks for every
+        observation itself (one at a time, after each admission)."""
 
     def client_side_hello(self) -> ClientHello:
         return self.core.config.client.hello(self.core.state.epoch)
@@ -104,9 +119,9 @@ class _BenchGateway:
     async def run_ticks(self, period_s: float = 0.002) -> None:
         """The control loop, as the shell runs it: ticks consume the queue; the arm follows."""
         while not self.done.is_set():
-            command, _ = self.core.tick(self.now_ns())
-            if command.target is not None:
-                self.core.handle(StateEvent(t=self.now_ns(), q=tuple(command.target)))
+            motion = self.core.step(TickEvent(t=self.now_ns())).motion
+            if isinstance(motion, Setpoint):
+                self.core.step(StateEvent(t=self.now_ns(), q=motion.q))
             await asyncio.sleep(period_s)
 
     def _record_legs(self, event: ChunkEvent, t_obs: int) -> None:
@@ -127,7 +142,7 @@ class _BenchGateway:
             self.client.request()
 
 
-def _admitted(lines: list[Line]) -> bool:
+def _admitted(lines: tuple[Line, ...]) -> bool:
     return any(isinstance(line, ChunkLine) and line.decision in ADMITTED for line in lines)
 
 

@@ -25,12 +25,13 @@ import pinocchio as pin
 
 from assurance import kinematics as kin_module
 from assurance.cartesian import TRANSLATION_UNITS, CartesianMapper
-from assurance.kinematics import ArmKinematics, IKConfig
+from assurance.kinematics import IKConfig
 from assurance.limits import JointLimits
 from skills.interpolator import SetpointInterpolator
 from skills.trajectory import MotionLimits, decelerate_to_hold, plan_joint_move
 from stubs import robot_model as rm
 from stubs.plant.mujoco_plant import MujocoPlant, MujocoPlantConfig
+from stubs.robot_model.kinematics import arm_kinematics
 
 
 def measure(label: str, call: Callable[[int], object], samples: int, warmup: int = 50,
@@ -58,7 +59,7 @@ def calibration(samples: int) -> None:
     """Machine speed right now: on a shared VM every figure below scales with these two."""
     a, b = np.ones(6), np.arange(6.0)
     measure("reference: numpy a + b on 6-vectors", lambda _i: a + b, samples)
-    kin = ArmKinematics()
+    kin = arm_kinematics()
     q = np.array(rm.HOME_Q)
 
     def raw_fk(_i: int) -> None:
@@ -69,7 +70,7 @@ def calibration(samples: int) -> None:
 
 
 def kinematics_benchmarks(samples: int) -> None:
-    kin = ArmKinematics()
+    kin = arm_kinematics()
     rng = np.random.default_rng(7)
     goals = rng.uniform(kin.lower, kin.upper, size=(samples + 100, 6))
     starts = np.clip(goals + rng.normal(0.0, 0.05, goals.shape), kin.lower, kin.upper)
@@ -105,7 +106,7 @@ def kinematics_benchmarks(samples: int) -> None:
 
 
 def trajectory_benchmarks(samples: int) -> None:
-    kin = ArmKinematics()
+    kin = arm_kinematics()
     limits = MotionLimits(kin.lower, kin.upper, np.full(6, np.pi), np.full(6, 8.0),
                           np.full(6, 80.0))
     home = np.array(rm.HOME_Q)

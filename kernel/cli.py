@@ -1,12 +1,13 @@
 """The ``warden`` command line.
 
-    warden replay SCENARIO [--out FILE] [--pretty] [--check]
+    warden replay SCENARIO|JOURNAL [--out FILE] [--pretty] [--check]
     warden run [MANIFEST] [--cycles N] [--clock wall|virtual] [--json FILE]
     warden serve-policy [server options]
     warden manifest keygen|sign|verify ...
 
 Exit codes: 0 the command ran (a refused chunk is a result, not an error); 1 ``--check`` found
-a broken expectation; 2 invalid input (the message names the file, the place and the field).
+a broken expectation, or a run journal did not replay bit for bit (its first difference is
+named); 2 invalid input (the message names the file, the place and the field).
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ from __future__ import annotations
 import argparse
 import sys
 from collections.abc import Sequence
+from pathlib import Path
 
 import msgspec
 
@@ -21,8 +23,8 @@ from drivers.base import DriverError
 from kernel import signing
 from kernel.cli_run import add_commands
 from kernel.core.lines import encode
-from kernel.replay import as_dict, check_expectations, replay
-from kernel.scenario import ScenarioError, load_scenario
+from kernel.replay import Replay, as_dict, check_expectations
+from kernel.scenario import Scenario, ScenarioError, load_scenario
 from kernel.timeline import render
 
 EXIT_OK, EXIT_CHECK_FAILED, EXIT_INVALID = 0, 1, 2
@@ -67,7 +69,8 @@ def _parser() -> argparse.ArgumentParser:
 
 def _replay(args: argparse.Namespace) -> int:
     scenario = load_scenario(args.scenario)
-    encoded = [encode(line) for line in replay(scenario)]
+    run = Replay(scenario)
+    encoded = [encode(line) for line in run.lines()]
     if args.out:
         try:
             with open(args.out, "wb") as out:
@@ -83,7 +86,38 @@ def _replay(args: argparse.Namespace) -> int:
     else:
         sys.stdout.buffer.writelines(line + b"\n" for line in encoded)
         sys.stdout.flush()
-    return _check(scenario, decoded) if args.check else EXIT_OK
+    verdict = _verify_journal(scenario, run, encoded) if scenario.recorded_ticks else EXIT_OK
+    checked = _check(scenario, decoded) if args.check else EXIT_OK
+    return max(verdict, checked)
+
+
+def _verify_journal(scenario: Scenario, run: Replay, encoded: list[bytes]) -> int:
+    """A run journal replays bit for bit: every command, and the run's decision log if it sits
+    beside the journal. Says so on stderr, or names the first difference (exit 1)."""
+    problem = run.first_difference
+    decisions = Path(scenario.path).with_name("decisions.jsonl")
+    compared = decisions.is_file()
+    if problem is None and compared:
+        problem = _first_line_difference(decisions.read_bytes().splitlines(), encoded)
+    where = f"{scenario.path}: replay"
+    if problem is not None:
+        print(f"warden: {where}: first difference {problem}", file=sys.stderr)
+        return EXIT_CHECK_FAILED
+    against = f" and the {len(encoded)} lines of {decisions.name}" if compared else ""
+    print(f"warden: {where}: identical: {run.commands_checked} commands{against}",
+          file=sys.stderr)
+    return EXIT_OK
+
+
+def _first_line_difference(recorded: list[bytes], replayed: list[bytes]) -> str | None:
+    for number, (old, new) in enumerate(zip(recorded, replayed, strict=False), start=1):
+        if old != new:
+            return (f"in decisions.jsonl line {number}: recorded {old.decode()[:300]}, "
+                    f"replayed {new.decode()[:300]}")
+    if len(recorded) != len(replayed):
+        return (f"in decisions.jsonl: {len(recorded)} lines recorded, {len(replayed)} "
+                "replayed")
+    return None
 
 
 def _check(scenario, decoded) -> int:  # type: ignore[no-untyped-def]

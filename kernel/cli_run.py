@@ -79,16 +79,16 @@ def _with_overrides(manifest: Manifest, args: argparse.Namespace) -> Manifest:
 
 
 async def _run(manifest: Manifest, journal_dir: Path | None) -> dict[str, Any]:
-    from kernel.cell.lockstep import run_lockstep
-    from kernel.cell.report import CycleProgress
+    from kernel.app.lockstep import run_lockstep
+    from kernel.app.report import CycleProgress
 
     with CycleProgress(manifest.cell.cycles) as progress:
         return await run_lockstep(manifest, journal_dir, progress)
 
 
 def _run_wall(manifest: Manifest, journal_dir: Path | None) -> dict[str, Any]:
-    from kernel.cell.live import run_live
-    from kernel.cell.report import CycleProgress
+    from kernel.app.live import run_live
+    from kernel.app.report import CycleProgress
     from kernel.shell.loop import run
 
     async def main() -> dict[str, Any]:
@@ -101,7 +101,7 @@ def _run_wall(manifest: Manifest, journal_dir: Path | None) -> dict[str, Any]:
 def _output(summary: dict[str, Any], json_out: str | None) -> None:
     from rich.console import Console
 
-    from kernel.cell.report import render_summary
+    from kernel.app.report import render_summary
 
     # With the JSON on stdout, the table goes to stderr so stdout stays machine-readable.
     render_summary(summary, Console(stderr=json_out == "-"))
@@ -112,9 +112,9 @@ def _output(summary: dict[str, Any], json_out: str | None) -> None:
 
 
 def serve_command(args: argparse.Namespace) -> int:
-    from stubs.policy_server.__main__ import main
+    from kernel.app import standins
 
-    return main(args.server_args)
+    return int(standins.load(standins.POLICIES, "serve")(args.server_args))
 
 
 __all__ = ["add_commands"]

@@ -1,10 +1,14 @@
 """Run journals: the events a live run fed its core, in the scenario event format.
 
 The first line is a header with ``"format": "warden-journal/1"`` and the same robot, timing,
-phases, session and allowlist sections as a scenario; every further line is one event (times in
-milliseconds since the run started), ticks included. ``warden replay JOURNAL`` feeds them to a
-fresh core and reproduces every decision of the run. A chunk that came off the wire is journaled
-as its frame (base64), so the replay decodes exactly the bytes the run decoded.
+phases, session, allowlist and motion sections as a scenario; every further line is one event
+(times in milliseconds since the run started), ticks and job results included, or a
+``command`` record: the motion effect the core decided on a tick, as it was written to the
+driver, with the driver's answer (``applied``: accepted, reason, the driver's time).
+``warden replay JOURNAL`` feeds the events to a fresh core, reproduces every decision of the
+run and compares every command it decides with the recorded one, bit for bit. A chunk that came
+off the wire is journaled as its frame (base64), so the replay decodes exactly the bytes the
+run decoded.
 """
 
 from __future__ import annotations
@@ -19,14 +23,19 @@ import msgspec
 
 from assurance.clock import ns_to_ms
 from assurance.envelope import TIME_FIELDS, Chunk, MalformedChunk
+from kernel.core.effects import Motion
 from kernel.core.events import (
     ChunkEvent,
     ClockSyncEvent,
+    ComputedEvent,
     ControllerEvent,
     Event,
     ForceEvent,
+    GripperEvent,
     HandshakeEvent,
+    InsertEvent,
     LinkEvent,
+    MoveEvent,
     ObservationEvent,
     OodEvent,
     OperatorEvent,
@@ -36,13 +45,47 @@ from kernel.core.events import (
 )
 
 JOURNAL_FORMAT = "warden-journal/1"
+HEADER_SECTIONS = ("robot", "timing", "phases", "session", "allowlist", "motion")
 
 
 def header(sections: Mapping[str, Any], name: str) -> dict[str, Any]:
     """The journal's first line: the scenario sections that configure the core."""
-    keys = ("robot", "timing", "phases", "session", "allowlist")
-    return {"format": JOURNAL_FORMAT, "name": name, **{k: sections[k] for k in keys
+    return {"format": JOURNAL_FORMAT, "name": name, **{k: sections[k] for k in HEADER_SECTIONS
                                                        if k in sections}}
+
+
+class Applied(msgspec.Struct, frozen=True, kw_only=True, omit_defaults=True):
+    """The driver's answer to a command, as the journal records it."""
+
+    accepted: bool
+    reason: str | None = None
+    t_device_ns: int | None = None
+    """The driver's own time stamp of the write (the host's monotonic clock, ns)."""
+
+
+class CommandRecord(msgspec.Struct, frozen=True, kw_only=True, omit_defaults=True):
+    """One motion effect as it was written to the driver, and what the driver answered.
+    ``origin`` is ``core`` for the tick's decision, ``shell`` for the stop the shell writes
+    when a tick fails (it has no decision to compare with)."""
+
+    t: int
+    effect: Motion
+    applied: Applied | None = None
+    origin: str = "core"
+
+
+_record_encoder = msgspec.json.Encoder()
+
+
+def command_line(record: CommandRecord) -> bytes:
+    """The journal line of a command record (``t`` in ms, like every other line)."""
+    body: dict[str, Any] = {"t": ns_to_ms(record.t), "kind": "command",
+                            "effect": record.effect}
+    if record.applied is not None:
+        body["applied"] = record.applied
+    if record.origin != "core":
+        body["origin"] = record.origin
+    return _record_encoder.encode(body)
 
 
 def event_record(event: Event) -> dict[str, Any]:
@@ -106,10 +149,16 @@ _BODIES: dict[type, Callable[[Any], dict[str, Any]]] = {
     LinkEvent: lambda e: {"kind": "link", "status": e.status},
     HandshakeEvent: lambda e: {"kind": "handshake", "offer": msgspec.to_builtins(e.offer)},
     OperatorEvent: lambda e: {"kind": "operator", "action": e.action},
-    ControllerEvent: lambda e: {"kind": "controller", "status": e.status},
+    ControllerEvent: lambda e: {"kind": "controller", "status": e.status,
+                                **({"reason": e.reason} if e.reason else {})},
     ClockSyncEvent: lambda e: {"kind": "clock_sync", "domain": e.domain,
                                "offset_ns": e.offset, "round_trip_ns": e.round_trip},
     TickEvent: lambda e: {"kind": "tick"},
+    MoveEvent: lambda e: {"kind": "move", "move_id": e.move_id, "target": list(e.target)},
+    GripperEvent: lambda e: {"kind": "gripper", "opening": e.opening},
+    InsertEvent: lambda e: {"kind": "insert", "xy": list(e.xy), "z_end": e.z_end,
+                            "rotation": list(e.rotation)},
+    ComputedEvent: lambda e: {"kind": "computed", "result": msgspec.to_builtins(e.result)},
 }
 
 

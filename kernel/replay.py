@@ -2,24 +2,95 @@
 
 This is the same core that decides a live run; only the clock differs. The decision log is a
 sequence of JSON lines whose bytes depend on nothing but the input file.
+
+A scenario's long admission work (:mod:`kernel.core.jobs`) runs at once, at the instant the core
+asks for it. A journal carries the results its run computed, and they are fed as recorded; it
+also carries every command the run wrote to its driver, and the replay compares each with the
+command the core decides now, bit for bit, keeping the first difference.
 """
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Iterator, Mapping
+from dataclasses import dataclass, field
 from typing import Any
 
 import msgspec
 
+from kernel.core.effects import Compute, Motion
+from kernel.core.events import ComputedEvent, Event
+from kernel.core.jobs import run_job
 from kernel.core.lines import Line, encode
 from kernel.core.runtime import Core
+from kernel.journal import CommandRecord
 from kernel.scenario import Scenario
 
 
+@dataclass(slots=True)
+class Replay:
+    """One replay: iterate :meth:`lines`; then read what the command comparison found."""
+
+    scenario: Scenario
+    core: Core = field(init=False)
+    commands_checked: int = 0
+    first_difference: str | None = None
+    _decided: deque[tuple[int, Motion]] = field(default_factory=deque)
+
+    def __post_init__(self) -> None:
+        self.core = Core(self.scenario.config)
+
+    def lines(self) -> Iterator[Line]:
+        recorded_results = self.scenario.recorded_ticks
+        for item in self.scenario.timeline():
+            if isinstance(item, CommandRecord):
+                self._compare(item)
+                continue
+            yield from self._step(item, recorded_results)
+        # A run ends (or is killed) between a tick and writing its command: one decision
+        # without a record at the very end is that, more is a difference.
+        if len(self._decided) > 1 and self.first_difference is None and self.commands_checked:
+            t, effect = self._decided[0]
+            self.first_difference = (f"at {t / 1e6:g} ms the core decided {_text(effect)}, "
+                                     "and the journal records no command for it")
+
+    def _step(self, event: Event, recorded_results: bool) -> Iterator[Line]:
+        step = self.core.step(event)
+        yield from step.lines
+        if recorded_results:  # a journal: its commands follow, to be compared
+            motion = step.motion
+            if motion is not None:
+                self._decided.append((event.t, motion))
+            return
+        for effect in step.effects:
+            if isinstance(effect, Compute):
+                config = self.core.config
+                result = run_job(effect.job, config.limits, config.cartesian)
+                yield from self._step(ComputedEvent(t=event.t, result=result), False)
+
+    def _compare(self, record: CommandRecord) -> None:
+        if record.origin != "core":
+            return  # the shell's own stop after a failed tick: no decision to compare with
+        self.commands_checked += 1
+        if self.first_difference is not None:
+            return
+        if not self._decided:
+            self.first_difference = (f"at {record.t / 1e6:g} ms the journal records "
+                                     f"{_text(record.effect)}, the core decided nothing")
+            return
+        t, decided = self._decided.popleft()
+        if decided != record.effect:
+            self.first_difference = (f"at {t / 1e6:g} ms (command {self.commands_checked}) "
+                                     f"the journal records {_text(record.effect)}, the core "
+                                     f"decided {_text(decided)}")
+
+
+def _text(effect: Motion) -> str:
+    return msgspec.json.encode(effect).decode()
+
+
 def replay(scenario: Scenario) -> Iterator[Line]:
-    core = Core(scenario.config)
-    for event in scenario.timeline():
-        yield from core.handle(event)
+    yield from Replay(scenario).lines()
 
 
 def replay_bytes(scenario: Scenario) -> bytes:

@@ -1,11 +1,13 @@
 """One tabletop assembly cycle: acquire → grasp → transport → pre-contact → insert → verify →
 retreat, driven tick by tick.
 
-The runner owns the cycle's sequence and its evidence, not the motion: each tick it looks at
-the measured state and at the phase and fallback state the core decided, and may ask the core
-for a phase transition (with the evidence a guarded one needs). The core decides; the runner
-adapts to what was decided. Classical moves are planned here and played back only while the
-core gives the planner the tick (see :mod:`skills.planner`).
+The runner owns the cycle's sequence and its evidence, never the motion: each tick it looks at
+the measured state and at what the core reports (phase, fallback state, the progress of its
+classical move, the contact owner's state) and may ask the core for something: a phase
+transition (with the evidence a guarded one needs), a classical move to a joint target (solved
+here from a tool pose), the gripper's opening, the contact owner's descent. Every request
+reaches the core as an event, so it is journaled and replayed; the core decides, and plays
+moves and descents itself. The runner adapts to what was decided.
 """
 
 from __future__ import annotations
@@ -13,16 +15,16 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 from enum import StrEnum
+from typing import Protocol
 
 import numpy as np
 
 from assurance.fallback import Mode
-from skills.contact import ContactOwner, ContactState
+from skills.contact import ContactState
 from skills.evaluator import Evaluator, Verdict
 from skills.layout import CellLayout
 from skills.phases import TaskPhase
-from skills.planner import PlannedMove, Planner
-from skills.trajectory import JointSample
+from skills.planner import MoveStatus, Planner
 
 P = TaskPhase
 
@@ -73,10 +75,50 @@ class Sensed:
     driver_ok: bool
 
 
+class CoreView(Protocol):
+    """What the runner reads of the core (its status, as of the last event)."""
+
+    @property
+    def phase(self) -> TaskPhase: ...
+    @property
+    def mode(self) -> Mode: ...
+    @property
+    def move_id(self) -> int: ...
+    @property
+    def move(self) -> MoveStatus: ...
+    @property
+    def contact(self) -> ContactState: ...
+
+
 @dataclass(frozen=True, slots=True)
 class PhaseRequest:
     to: TaskPhase
     evidence: dict[str, bool]
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class MoveRequest:
+    """A classical rest-to-rest move to a joint target."""
+
+    move_id: int
+    target: np.ndarray
+
+
+@dataclass(frozen=True, slots=True)
+class GripperRequest:
+    opening: float
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class InsertRequest:
+    """The contact owner's descent along the vertical through ``xy`` down to ``z_end``."""
+
+    xy: np.ndarray
+    z_end: float
+    rotation: np.ndarray
+
+
+Request = PhaseRequest | MoveRequest | GripperRequest | InsertRequest
 
 
 @dataclass(frozen=True, slots=True)
@@ -88,17 +130,18 @@ class Outcome:
 
 class AssemblyRunner:
     def __init__(
-        self, layout: CellLayout, planner: Planner, contact: ContactOwner,
-        evaluator: Evaluator, depth_probe: Callable[[], float],
-        timing: CycleTiming | None = None,
+        self, layout: CellLayout, planner: Planner, evaluator: Evaluator,
+        depth_probe: Callable[[], float], timing: CycleTiming | None = None,
     ) -> None:
-        self.layout, self.planner, self.contact = layout, planner, contact
+        self.layout, self.planner = layout, planner
         self.evaluator, self.depth_probe = evaluator, depth_probe
         self.timing = timing or CycleTiming()
         self.step = Step.DONE
-        self.gripper = layout.gripper_open
         self.outcome: Outcome | None = None
-        self._move: PlannedMove | None = None
+        self._moves = 0
+        self._move_target: np.ndarray | None = None
+        self._view: CoreView | None = None
+        self._requests: list[Request] = []
         self._since_ns = 0
         self._last_request_ns = -(10**18)
         self._failure = ""
@@ -108,32 +151,23 @@ class AssemblyRunner:
     def begin(self, t_ns: int) -> None:
         self._enter(Step.START, t_ns)
         self.outcome, self._failure = None, ""
-        self.contact.reset()
-        self.gripper = self.layout.gripper_open
+        self._move_target = None
+        self._requests.append(GripperRequest(self.layout.gripper_open))
 
     @property
     def done(self) -> bool:
         return self.step is Step.DONE
 
-    def planner_setpoint(self, dt_s: float) -> JointSample | None:
-        """The classical setpoint for a tick the core gave to the planner (None: no move)."""
-        return None if self._move is None else self._move.advance(dt_s)
-
-    def resume_move_from(self, q: np.ndarray) -> None:
-        """Re-plan the current move from ``q`` at rest: another owner moved the arm meanwhile.
-
-        Raises:
-            PlanningError, ValueError: no rest-to-rest move from ``q`` to the move's target.
-        """
-        if self._move is not None:
-            self._move = self.planner.to_joints(q, self._move.target)
-
-    def update(self, sensed: Sensed, phase: TaskPhase, mode: Mode) -> PhaseRequest | None:
-        """Advance the cycle; may return a phase transition to ask the core for."""
-        if self.step is Step.DONE:
-            return None
-        handler = _HANDLERS.get(self.step, AssemblyRunner._planned_step)
-        return handler(self, sensed, phase, mode)
+    def update(self, sensed: Sensed, view: CoreView) -> list[Request]:
+        """Advance the cycle; returns what to ask the core for (in order)."""
+        self._view = view
+        if self.step is not Step.DONE:
+            handler = _HANDLERS.get(self.step, AssemblyRunner._planned_step)
+            request = handler(self, sensed, view.phase, view.mode)
+            if request is not None:
+                self._requests.append(request)
+        requests, self._requests = self._requests, []
+        return requests
 
     # -- steps -------------------------------------------------------------------------------
 
@@ -145,9 +179,13 @@ class AssemblyRunner:
         return self._request(target, s, mode) if target else None
 
     def _planned_step(self, s: Sensed, phase: TaskPhase, mode: Mode) -> PhaseRequest | None:
-        move = self._move
-        if move is None or not move.finished or not self._at_rest(s) or np.abs(
-            s.q - move.target
+        view, target = self._view, self._move_target
+        if view is None or target is None or view.move_id != self._moves:
+            return None
+        if view.move is MoveStatus.REFUSED:
+            return self._fail(f"the planner refused the {self.step} move", s, mode)
+        if view.move is not MoveStatus.FINISHED or not self._at_rest(s) or np.abs(
+            s.q - target
         ).max() > self.timing.settle_rad:
             return None
         return _AFTER_MOVE[self.step](self, s, phase, mode)
@@ -156,7 +194,7 @@ class AssemblyRunner:
         self._plan(Step.PICK_DESCEND, s, self.layout.grasp_tcp)
 
     def _after_pick_descend(self, s: Sensed, phase: TaskPhase, mode: Mode) -> None:
-        self.gripper = self.layout.gripper_closed
+        self._requests.append(GripperRequest(self.layout.gripper_closed))
         self._enter(Step.GRASP, s.t_ns)
 
     def _grasp(self, s: Sensed, phase: TaskPhase, mode: Mode) -> None:
@@ -169,19 +207,18 @@ class AssemblyRunner:
 
     def _after_transport(self, s: Sensed, phase: TaskPhase, mode: Mode) -> PhaseRequest | None:
         if phase is P.PRE_CONTACT:
-            self._move = None
+            self._move_target = None
             self._enter(Step.APPROACH, s.t_ns)
             return None
         return self._request(P.PRE_CONTACT, s, mode)
 
-    def _approach(self, s: Sensed, phase: TaskPhase, mode: Mode) -> PhaseRequest | None:
+    def _approach(self, s: Sensed, phase: TaskPhase, mode: Mode) -> Request | None:
         if phase is P.CONTACT:
-            tcp = self.planner.kin.forward(s.q).position
-            bottom = self.layout.pre_insert_tcp[2] - self.layout.pre_insert_gap - (
-                self.layout.hole_depth - self.timing.insert_short_of_bottom_m)
-            self.contact.start(s.q, self.layout.hole_top[:2], float(tcp[2]), bottom)
+            layout = self.layout
+            bottom = layout.pre_insert_tcp[2] - layout.pre_insert_gap - (
+                layout.hole_depth - self.timing.insert_short_of_bottom_m)
             self._enter(Step.INSERT, s.t_ns)
-            return None
+            return InsertRequest(layout.hole_top[:2], float(bottom), layout.tool_down)
         if self._elapsed(s) > self.timing.approach_timeout_s:
             return self._fail("pre-contact approach timed out", s, mode)
         evidence = self.contact_evidence(s)
@@ -195,17 +232,18 @@ class AssemblyRunner:
             return None
         if phase is P.PRE_CONTACT:  # a hold interrupted contact: the insertion is not resumed
             return self._fail("insertion interrupted by a fallback", s, mode)
-        if self.contact.state is ContactState.RETREATED and mode is Mode.RUNNING:
+        contact = self._view.contact if self._view is not None else ContactState.IDLE
+        if contact is ContactState.RETREATED and mode is Mode.RUNNING:
             return self._fail("contact anomaly: force-aware retreat", s, mode)
         timed_out = self._elapsed(s) > self.timing.insert_timeout_s
-        if self.contact.state is ContactState.DONE or timed_out:
+        if contact is ContactState.DONE or timed_out:
             return self._request(P.VERIFY, s, mode)
         return None
 
     def _verify(self, s: Sensed, phase: TaskPhase, mode: Mode) -> PhaseRequest | None:
         if phase is P.RETREAT:
             self._enter(Step.RELEASE, s.t_ns)
-            self.gripper = self.layout.gripper_open
+            self._requests.append(GripperRequest(self.layout.gripper_open))
             return None
         if self.outcome is None:
             verdict: Verdict = self.evaluator.verdict(self.depth_probe())
@@ -219,12 +257,11 @@ class AssemblyRunner:
             self._plan(Step.RETREAT_LIFT, s, lift)
 
     def _after_retreat_lift(self, s: Sensed, phase: TaskPhase, mode: Mode) -> None:
-        self._move = self.planner.to_joints(s.q, self.layout.home_q)
-        self._enter(Step.RETREAT_HOME, s.t_ns)
+        self._move_to(Step.RETREAT_HOME, s, self.layout.home_q)
 
     def _after_retreat_home(self, s: Sensed, phase: TaskPhase, mode: Mode) -> PhaseRequest | None:
         if phase is P.IDLE:
-            self._move = None
+            self._move_target = None
             if self.outcome is None:
                 self.outcome = Outcome(False, self.depth_probe(), self._failure or "no verdict")
             self._enter(Step.DONE, s.t_ns)
@@ -255,7 +292,17 @@ class AssemblyRunner:
     # -- helpers -----------------------------------------------------------------------------
 
     def _plan(self, step: Step, s: Sensed, tcp: np.ndarray) -> None:
-        self._move = self.planner.to_tool_pose(s.q, tcp)
+        """Ask for a classical move that ends with the tool down at ``tcp``.
+
+        Raises:
+            PlanningError: no IK solution for ``tcp`` (a layout the arm cannot reach).
+        """
+        self._move_to(step, s, self.planner.solve(s.q, tcp))
+
+    def _move_to(self, step: Step, s: Sensed, target: np.ndarray) -> None:
+        self._moves += 1
+        self._move_target = np.asarray(target, dtype=float)
+        self._requests.append(MoveRequest(self._moves, self._move_target))
         self._enter(step, s.t_ns)
 
     def _enter(self, step: Step, t_ns: int) -> None:

@@ -1,11 +1,14 @@
 """The contact owner: a force-guarded compliant insertion and a force-aware retreat.
 
-From contact onset this law owns motion (seed §2.2). It lowers the tool along the hole's axis
-at a fixed speed in joint impedance mode, re-solving IK for the tool-down pose each tick, and
-stops when the target depth is reached or the measured force says the peg has landed. A target
+From contact onset this law owns motion. It lowers the tool along a vertical axis at a fixed
+speed in joint impedance mode, re-solving IK for the descent's tool orientation each tick, and
+stops when the target depth is reached or the measured force says the part has landed. A target
 offered by an admitted chunk is only ever a bounded correction of its own nominal target: it
 is clipped to ``max_target_offset`` and never replaces the law. The retreat lifts along the
 same axis, compliantly, until the tool is back at the start height.
+
+Without a kinematic model the law can only hold compliantly where contact began: a descent is
+refused (:class:`NoKinematics`) and a retreat holds.
 """
 
 from __future__ import annotations
@@ -28,20 +31,37 @@ class ContactState(StrEnum):
     RETREATED = "retreated"
 
 
+_STIFFNESS = (1500.0, 1500.0, 1000.0, 200.0, 200.0, 200.0)
+"""N·m/rad per joint of a 6-joint arm: stiff shoulder and elbow, soft wrist."""
+_INERTIA = (2.0, 2.0, 0.6, 0.15, 0.15, 0.12)
+"""kg·m², about what each joint of a UR5e-class arm carries: damping is critical for it."""
+
+
+class NoKinematics(ValueError):
+    """A Cartesian descent was asked of a contact owner that has no kinematic model."""
+
+
 @dataclass(frozen=True, slots=True, eq=False)
 class ContactConfig:
     speed_m_s: float = 0.03
     retreat_speed_m_s: float = 0.04
     stop_force_n: float = 12.0
-    """Force (norm) at which the descent stops: the peg has landed."""
+    """Force (norm) at which the descent stops: the part has landed."""
     dwell_s: float = 0.25
     max_target_offset: float = 0.002
     """Largest correction (rad per joint) a bounded target may add to the law's own target."""
-    stiffness: np.ndarray = field(
-        default_factory=lambda: np.array([1500.0, 1500.0, 1000.0, 200.0, 200.0, 200.0]))
+    stiffness: np.ndarray = field(default_factory=lambda: np.array(_STIFFNESS))
     damping: np.ndarray = field(default_factory=lambda: 2 * np.sqrt(
-        np.array([1500.0, 1500.0, 1000.0, 200.0, 200.0, 200.0])
-        * np.array([2.0, 2.0, 0.6, 0.15, 0.15, 0.12])))
+        np.array(_STIFFNESS) * np.array(_INERTIA)))
+
+    def for_dof(self, dof: int) -> ContactConfig:
+        """These gains for an arm of ``dof`` joints (other than six: the mean gain on each)."""
+        if self.stiffness.shape == (dof,):
+            return self
+        stiffness = np.full(dof, float(self.stiffness.mean()))
+        damping = np.full(dof, float(self.damping.mean()))
+        return ContactConfig(self.speed_m_s, self.retreat_speed_m_s, self.stop_force_n,
+                             self.dwell_s, self.max_target_offset, stiffness, damping)
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -53,22 +73,30 @@ class ContactCommand:
 
 
 class ContactOwner:
-    def __init__(self, kinematics: ArmKinematics, tool_down: np.ndarray,
+    def __init__(self, kinematics: ArmKinematics | None,
                  config: ContactConfig | None = None) -> None:
         self.kin = kinematics
-        self.tool_down = tool_down
         self.config = config or ContactConfig()
         self.state = ContactState.IDLE
         self._xy = np.zeros(2)
+        self._rotation = np.eye(3)
         self._z = self._z_start = self._z_end = 0.0
-        self._q = np.zeros(kinematics.dof)
+        self._q = np.zeros(self.config.stiffness.shape[0])
         self._dwell_until = 0
 
-    def start(self, q: np.ndarray, xy: np.ndarray, z_start: float, z_end: float) -> None:
-        """Begin a descent from ``z_start`` to ``z_end`` along the vertical through ``xy``."""
-        self._xy, self._z, self._z_start, self._z_end = np.asarray(xy, float), z_start, \
-            z_start, z_end
+    def start(self, q: np.ndarray, xy: np.ndarray, z_end: float, rotation: np.ndarray) -> None:
+        """Begin a descent from the tool's height at ``q`` down to ``z_end``, along the vertical
+        through ``xy``, holding the tool at ``rotation`` (a 3×3 matrix, base frame).
+
+        Raises:
+            NoKinematics: there is no kinematic model to descend with.
+        """
+        kin = self._kinematics()
         self._q = np.asarray(q, dtype=float).copy()
+        self._xy = np.asarray(xy, float)
+        self._rotation = np.asarray(rotation, float)
+        self._z = self._z_start = float(kin.forward(self._q).position[2])
+        self._z_end = float(z_end)
         self.state = ContactState.DESCENDING
 
     def reset(self) -> None:
@@ -81,15 +109,20 @@ class ContactOwner:
         self.state = ContactState.HOLDING
 
     def begin_retreat(self, q: np.ndarray) -> None:
-        """Force-aware retreat from wherever the tool is now back up to the start height."""
+        """Force-aware retreat from wherever the tool is now back up to the start height (2 cm
+        up, if no descent ran); without a kinematic model, a compliant hold where it is."""
         if self.state in (ContactState.RETREATING, ContactState.RETREATED):
             return
         self._q = np.asarray(q, dtype=float).copy()
-        position = self.kin.forward(self._q).position
-        self._z = float(position[2])
+        if self.kin is None:
+            self.state = ContactState.RETREATED
+            return
+        pose = self.kin.forward(self._q)
+        self._z = float(pose.position[2])
         if self.state in (ContactState.IDLE, ContactState.HOLDING):
             self._z_start = self._z + 0.02
-            self._xy = position[:2]
+            self._xy = pose.position[:2]
+            self._rotation = pose.rotation
         self.state = ContactState.RETREATING
 
     def step(self, now_ns: int, dt_s: float, force_norm: float,
@@ -120,5 +153,10 @@ class ContactOwner:
             self._dwell_until = now_ns + int(self.config.dwell_s * 1e9)
 
     def _solve(self, z: float) -> np.ndarray:
-        target = Pose(np.array([self._xy[0], self._xy[1], z]), self.tool_down)
-        return self.kin.solve(target, self._q).q
+        target = Pose(np.array([self._xy[0], self._xy[1], z]), self._rotation)
+        return self._kinematics().solve(target, self._q).q
+
+    def _kinematics(self) -> ArmKinematics:
+        if self.kin is None:
+            raise NoKinematics("no kinematic model: the contact owner can only hold")
+        return self.kin

@@ -113,8 +113,14 @@ class SetpointInterpolator:
         """The last setpoint returned (the start state before the first update)."""
         return self._setpoint
 
-    def update(self, target: np.ndarray, now_ns: int) -> Setpoint:
+    def update(self, target: np.ndarray, now_ns: int,
+               stream: tuple[np.ndarray, int] | None = None) -> Setpoint:
         """The setpoint for ``now_ns + control_period_ns``, following ``target``.
+
+        ``stream`` is what the caller knows of the stream the target belongs to: the step into
+        this target from the one before and the stream's own interval (an action grid). Without
+        it, both are estimated from when targets change, which aliases when the stream's
+        interval is not a multiple of the control period (10 ms actions on 4 ms ticks).
 
         Raises:
             ValueError: ``target`` is malformed or outside the position limits, or ``now_ns``
@@ -125,19 +131,24 @@ class SetpointInterpolator:
             raise ValueError(f"time went backwards: {now_ns} < {self._last_t_ns}")
         self._last_t_ns = now_ns
         if goal.tobytes() != self._target.tobytes():  # exact change, cheaper than array_equal
-            self._new_stream_sample(goal, now_ns)
+            self._new_stream_sample(goal, now_ns, stream)
         elif self._stream_is_stale(now_ns):
             self._settle(self._arrived())
         self._advance()
         return self._setpoint
 
-    def _new_stream_sample(self, goal: np.ndarray, now_ns: int) -> None:
-        interval = None if self._target_t_ns is None else now_ns - self._target_t_ns
+    def _new_stream_sample(self, goal: np.ndarray, now_ns: int,
+                           stream: tuple[np.ndarray, int] | None) -> None:
+        if stream is not None:
+            step, interval = np.asarray(stream[0], dtype=float), stream[1]
+        else:
+            step = goal - self._target
+            interval = None if self._target_t_ns is None else now_ns - self._target_t_ns
         if interval is not None and not 0 < interval <= self.config.max_stream_interval_ns:
             interval = None
         velocity = np.zeros(self.limits.dof)
         if interval is not None and self.config.velocity_feedforward:
-            velocity = (goal - self._target) / (interval * NS)
+            velocity = step / (interval * NS)
             velocity = self._reachable(self._brakeable(velocity, goal), goal)
         self._target, self._target_t_ns, self._stream_interval_ns = goal, now_ns, interval
         self._inp.target_position = goal

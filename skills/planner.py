@@ -6,6 +6,8 @@ hold in the middle of a move pauses it instead of letting it run ahead of the ar
 
 from __future__ import annotations
 
+from enum import StrEnum
+
 import numpy as np
 
 from assurance.kinematics import ArmKinematics, Pose
@@ -14,6 +16,18 @@ from skills.trajectory import JointSample, JointTrajectory, MotionLimits, plan_j
 
 class PlanningError(RuntimeError):
     """No joint solution or no trajectory for a requested classical move."""
+
+
+class MoveStatus(StrEnum):
+    """Where a requested classical move stands (the core reports it to the task)."""
+
+    NONE = "none"
+    WAITING = "waiting"
+    """Requested; starts once the planner owns the tick and the arm has settled."""
+    PLAYING = "playing"
+    FINISHED = "finished"
+    REFUSED = "refused"
+    """No rest-to-rest move inside the limits reaches the target."""
 
 
 class PlannedMove:
@@ -32,6 +46,19 @@ class PlannedMove:
         return self.elapsed_s >= self.trajectory.duration
 
 
+def joint_move(q_from: np.ndarray, q_to: np.ndarray, limits: MotionLimits) -> PlannedMove:
+    """A time-optimal rest-to-rest joint move that stays inside the position limits.
+
+    Raises:
+        PlanningError: the move would leave the joint limits.
+        ValueError: a vector has the wrong length, is not finite or is outside the limits.
+    """
+    move = plan_joint_move(np.asarray(q_from, float), np.asarray(q_to, float), limits)
+    if not move.within(limits):
+        raise PlanningError("planned move leaves the joint limits")
+    return PlannedMove(move)
+
+
 class Planner:
     def __init__(self, kinematics: ArmKinematics, limits: MotionLimits,
                  tool_down: np.ndarray) -> None:
@@ -40,10 +67,7 @@ class Planner:
         self.tool_down = tool_down
 
     def to_joints(self, q_from: np.ndarray, q_to: np.ndarray) -> PlannedMove:
-        move = plan_joint_move(np.asarray(q_from, float), np.asarray(q_to, float), self.limits)
-        if not move.within(self.limits):
-            raise PlanningError("planned move leaves the joint limits")
-        return PlannedMove(move)
+        return joint_move(q_from, q_to, self.limits)
 
     def to_tool_pose(self, q_from: np.ndarray, tcp: np.ndarray) -> PlannedMove:
         """A joint-space move that ends with the tool down at ``tcp``."""

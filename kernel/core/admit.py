@@ -1,16 +1,26 @@
-"""Admission: every gate, then the merge, then one decision line (CONTRACT.md §3–§4).
+"""Admission: every gate, then the merge, then one decision line (docs/contract.md §3–§4).
 
 Order of work for one chunk: decode result → duplicate check (a duplicate is ignored and changes
 nothing) → content, identity, context, time and divergence gates → merge plan and projection
 (feasibility) → decision. Only an admitted chunk touches the queue, and it does so by one
 commit of a plan built beforehand.
+
+Two steps may be long (:mod:`kernel.core.jobs`): mapping a Cartesian chunk to joint targets and
+the exact projection of a proposal that fails the fast check. For those the chunk is parked and
+a job is asked for; when its result comes back (:func:`on_computed`) the whole evaluation runs
+again at that instant with the result in hand, so a chunk is always judged against the state
+and the clock of the moment it is decided. A chunk that the cheap gates refuse already is
+decided at once, without any long work.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import msgspec
 import numpy as np
 
+from assurance.cartesian import Mapped
 from assurance.clock import ns_to_ms
 from assurance.envelope import Chunk, MalformedChunk, ReplacementPolicy
 from assurance.fallback import IRRELEVANT, refusal_trigger
@@ -24,13 +34,40 @@ from assurance.gates import (
     time_verdict,
 )
 from assurance.identity import Seen
-from assurance.merge import MergeInputs, MergePlan, plan_merge
+from assurance.merge import MergeDraft, MergeInputs, MergePlan, draft_merge
+from assurance.projection import Projection, project, project_fast
 from assurance.reasons import ReasonCode as R
 from assurance.reasons import canonical
+from kernel.core.effects import Compute
+from kernel.core.jobs import (
+    Job,
+    JobFailed,
+    JobResult,
+    MapJob,
+    MapResult,
+    ProjectJob,
+    ProjectResult,
+    array_of,
+    rows_of,
+)
 from kernel.core.lines import ChunkLine
 from kernel.core.state import CoreState
 
 _PROJECTION_DIGITS = 9
+_MAX_PROJECTION_JOBS = 2
+"""A chunk whose merge changed while its projection ran is projected again once more in a job;
+after that, inline (rare: the queue changed under it twice)."""
+
+
+@dataclass(slots=True, eq=False)
+class Parked:
+    """A chunk waiting for a job's result."""
+
+    chunk: Chunk
+    seen: Seen
+    job: Job
+    mapped: Mapped | None = None
+    projection_jobs: int = 0
 
 
 def admit(state: CoreState, chunk: Chunk | MalformedChunk) -> None:
@@ -42,7 +79,27 @@ def admit(state: CoreState, chunk: Chunk | MalformedChunk) -> None:
         _ignore_duplicate(state, chunk)
         return
     state.memory.remember(chunk.chunk_id, chunk.payload_hash)
-    _evaluate(state, chunk, seen)
+    if state.config.cartesian is not None and _worth_mapping(state, chunk, seen):
+        _park(state, Parked(chunk, seen, MapJob(
+            job_id=state.next_job_id(), actions=rows_of(chunk.actions),
+            anchor=tuple(_anchor(state, chunk).tolist()))))
+        return
+    _evaluate(state, chunk, seen, None, None)
+
+
+def on_computed(state: CoreState, result: JobResult) -> None:
+    """A job's result: finish the parked chunk's admission with it."""
+    parked = state.parked.pop(result.job_id, None)
+    if parked is None:
+        return  # not asked for by this core (a journal edited by hand): nothing to finish
+    chunk = parked.chunk
+    if isinstance(result, JobFailed):
+        _decide(state, chunk.chunk_id, (R.INFEASIBLE,), detail=f"not checked: {result.detail}")
+    elif isinstance(result, MapResult):
+        parked.mapped = _mapped(result, chunk, state)
+        _evaluate(state, chunk, parked.seen, parked, None)
+    else:
+        _evaluate(state, chunk, parked.seen, parked, result)
 
 
 def _ignore_duplicate(state: CoreState, chunk: Chunk) -> None:
@@ -58,7 +115,19 @@ def _ignore_duplicate(state: CoreState, chunk: Chunk) -> None:
     ))
 
 
-def _evaluate(state: CoreState, chunk: Chunk, seen: Seen) -> None:
+def _worth_mapping(state: CoreState, chunk: Chunk, seen: Seen) -> bool:
+    """Map a Cartesian chunk only if the cheap gates leave it a chance of being planned."""
+    ctx = state.context()
+    t_obs = state.observations.time_of(chunk.observation_id)
+    reasons = content_reasons(chunk, ctx)
+    reasons += identity_reasons(chunk, seen, ctx, observed=t_obs is not None)
+    reasons += context_reasons(chunk, ctx)
+    reasons += time_verdict(chunk, ctx, t_obs).reasons
+    return _NOT_PLANNED.isdisjoint(reasons)
+
+
+def _evaluate(state: CoreState, chunk: Chunk, seen: Seen, parked: Parked | None,
+              exact: ProjectResult | None) -> None:
     ctx = state.context()
     t_obs = state.observations.time_of(chunk.observation_id)
     reasons = content_reasons(chunk, ctx)
@@ -66,7 +135,8 @@ def _evaluate(state: CoreState, chunk: Chunk, seen: Seen) -> None:
     reasons += context_reasons(chunk, ctx)
     timing = time_verdict(chunk, ctx, t_obs)
     reasons += timing.reasons
-    joints, unmappable = _in_joint_space(state, chunk, reasons)
+    mapped = parked.mapped if parked is not None else None
+    joints, unmappable = _in_joint_space(state, chunk, reasons, mapped)
     drift, plan = None, None
     if joints is None:
         reasons += [R.INFEASIBLE] if unmappable else []
@@ -74,7 +144,14 @@ def _evaluate(state: CoreState, chunk: Chunk, seen: Seen) -> None:
         joint_ctx = ctx if joints is chunk else _joint_context(ctx, joints)
         drift, diverged = divergence_verdict(joints, joint_ctx, timing.first_due)
         reasons += diverged
-        plan = _plan(state, joints, timing, t_obs) if _can_plan(joints, timing, reasons) else None
+        if _can_plan(joints, timing, reasons):
+            inputs = _inputs(state, joints, timing, t_obs)
+            draft = draft_merge(state.queue, inputs, state.config.limits)
+            projection = _projection(state, draft, parked, exact)
+            if projection is None:
+                _park(state, _projecting(state, chunk, seen, parked, draft))
+                return
+            plan = draft.finish(projection, inputs)
     if plan is not None:
         reasons += _feasibility_reasons(state, plan)
     extras = _measurements(state, t_obs, plan, drift)
@@ -86,20 +163,66 @@ def _evaluate(state: CoreState, chunk: Chunk, seen: Seen) -> None:
     _commit(state, chunk, plan, t_obs, extras)
 
 
-def _in_joint_space(state: CoreState, chunk: Chunk, reasons: list[R]) -> tuple[Chunk | None, str]:
+def _projection(state: CoreState, draft: MergeDraft, parked: Parked | None,
+                exact: ProjectResult | None) -> Projection | None:
+    """The draft's projection: the fast check's, the job's (if it was for these very rows
+    and reference), or None when a job must compute it."""
+    limits, dt_s = state.config.limits, draft.dt * 1e-9
+    fast = project_fast(draft.rows, draft.reference, dt_s, limits)
+    if fast is not None:
+        return fast
+    if exact is not None and parked is not None and _same_inputs(parked.job, draft):
+        width = limits.dim
+        actions = array_of(exact.actions, width)
+        return Projection(actions, np.array(exact.distances), exact.recoverable,
+                          exact.max_distance)
+    if parked is not None and parked.projection_jobs >= _MAX_PROJECTION_JOBS:
+        return project(draft.rows, draft.reference, dt_s, limits)
+    return None
+
+
+def _same_inputs(job: Job, draft: MergeDraft) -> bool:
+    return isinstance(job, ProjectJob) and job.dt_ns == draft.dt and (
+        job.rows == rows_of(draft.rows)) and job.ref_q == tuple(draft.reference.q.tolist()) and (
+        job.ref_step == tuple(draft.reference.step.tolist()))
+
+
+def _projecting(state: CoreState, chunk: Chunk, seen: Seen, parked: Parked | None,
+                draft: MergeDraft) -> Parked:
+    job = ProjectJob(job_id=state.next_job_id(), rows=rows_of(draft.rows),
+                     ref_q=tuple(draft.reference.q.tolist()),
+                     ref_step=tuple(draft.reference.step.tolist()), dt_ns=draft.dt)
+    if parked is None:
+        return Parked(chunk, seen, job, projection_jobs=1)
+    parked.job = job
+    parked.projection_jobs += 1
+    return parked
+
+
+def _park(state: CoreState, parked: Parked) -> None:
+    state.parked[parked.job.job_id] = parked
+    state.effect(Compute(job=parked.job))
+
+
+def _mapped(result: MapResult, chunk: Chunk, state: CoreState) -> Mapped:
+    if result.joints is None:
+        return Mapped(None, result.detail)
+    return Mapped(array_of(result.joints, state.config.limits.dim))
+
+
+def _in_joint_space(state: CoreState, chunk: Chunk, reasons: list[R],
+                    mapped: Mapped | None) -> tuple[Chunk | None, str]:
     """The chunk with joint-space actions, or None and (if it cannot be mapped) why.
 
-    A joint-space session's chunk is itself. A Cartesian chunk is mapped through IK from the
-    state the policy observed; one that is non-finite or of the wrong schema is not mapped (its
-    refusal already says why), one that leaves the workspace or has no IK solution is
-    INFEASIBLE as a whole.
+    A joint-space session's chunk is itself. A Cartesian chunk's mapping (a job's result) was
+    made from the state the policy observed; one that is non-finite or of the wrong schema is
+    not mapped (its refusal already says why), one that leaves the workspace or has no IK
+    solution is INFEASIBLE as a whole.
     """
-    mapper = state.config.cartesian
-    if mapper is None:
+    if state.config.cartesian is None:
         return chunk, ""
-    if R.NONFINITE in reasons or R.SCHEMA_MISMATCH in reasons:
+    if R.NONFINITE in reasons or R.SCHEMA_MISMATCH in reasons or mapped is None:
         return None, ""
-    mapped = mapper.to_joints(chunk.actions, _anchor(state, chunk))
     if mapped.joints is None:
         return None, mapped.detail
     return msgspec.structs.replace(chunk, actions=mapped.joints), ""
@@ -145,13 +268,12 @@ def _can_plan(chunk: Chunk, timing: Timing, reasons: list[R]) -> bool:
     return timing.late < timing.runnable_until or chunk.horizon == 0
 
 
-def _plan(state: CoreState, chunk: Chunk, timing: Timing, t_obs: int | None) -> MergePlan:
-    inputs = MergeInputs(
+def _inputs(state: CoreState, chunk: Chunk, timing: Timing, t_obs: int | None) -> MergeInputs:
+    return MergeInputs(
         chunk=chunk, timing=timing, t_obs=int(t_obs or 0), epoch=state.epoch,
         blend_allowed=state.card.policy.blend, hold_q=state.hold_q, measured_q=state.measured_q,
         last_setpoint=state.last_setpoint,
     )
-    return plan_merge(state.queue, inputs, state.config.limits)
 
 
 def _feasibility_reasons(state: CoreState, plan: MergePlan) -> list[R]:

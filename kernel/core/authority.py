@@ -18,16 +18,21 @@ from kernel.core.events import (
     ClockSyncEvent,
     ControllerEvent,
     ForceEvent,
+    GripperEvent,
     HandshakeEvent,
+    InsertEvent,
     LinkEvent,
+    MoveEvent,
     ObservationEvent,
     OodEvent,
     OperatorEvent,
     PhaseEvent,
     StateEvent,
 )
-from kernel.core.lines import HandshakeLine
+from kernel.core.lines import HandshakeLine, MotionLine
+from kernel.core.motion import request_move
 from kernel.core.state import CoreState
+from skills.contact import NoKinematics
 from skills.phases import TaskPhase
 from skills.task_fsm import Requester
 
@@ -46,6 +51,7 @@ def on_state(state: CoreState, event: StateEvent) -> None:
     state.measured_q = q
     state.measured_t = state.t
     if event.force_residual is not None:
+        state.motion.force = event.force_residual
         _check_force(state, event.force_residual)
 
 
@@ -54,6 +60,7 @@ def on_observation(state: CoreState, event: ObservationEvent) -> None:
 
 
 def on_force(state: CoreState, event: ForceEvent) -> None:
+    state.motion.force = event.residual
     _check_force(state, event.residual)
 
 
@@ -206,6 +213,8 @@ _OPERATOR = {
 
 
 def on_controller(state: CoreState, event: ControllerEvent) -> None:
+    """The device's answer: a refused command or a fault stops the arm (CONTROLLER_STOP), an
+    e-stop is E_STOP; ``ok`` is the precondition for recovering from either."""
     status = event.status
     if status == "ok":
         state.controller_ok = True
@@ -218,3 +227,51 @@ def on_controller(state: CoreState, event: ControllerEvent) -> None:
     state.controller_ok = False
     trigger = R.CONTROLLER_REJECT if status == "reject" else R.CONTROLLER_FAULT
     state.fire(trigger)
+
+
+# -- the task's motion requests ------------------------------------------------------------------
+
+
+def on_move(state: CoreState, event: MoveEvent) -> None:
+    """A classical move: checked here, planned when the planner takes it up (a ``motion``
+    line says which)."""
+    target = np.asarray(event.target, dtype=float)
+    limits = state.motion.planner_limits
+    problem = ""
+    if target.shape != (limits.dof,):
+        problem = f"target has {target.shape[0]} values, the arm has {limits.dof} joints"
+    elif not (np.isfinite(target).all() and limits.contains(target)):
+        problem = "target is not finite or not inside the position limits"
+    if problem:
+        state.emit(MotionLine(t=state.t_ms, request="move", decision="refused",
+                              move_id=event.move_id, detail=problem))
+        return
+    request_move(state.motion, event.move_id, target)
+
+
+def on_gripper(state: CoreState, event: GripperEvent) -> None:
+    if not np.isfinite(event.opening) or event.opening < 0:
+        state.emit(MotionLine(t=state.t_ms, request="gripper", decision="refused",
+                              detail=f"opening {event.opening!r} is not a distance"))
+        return
+    state.motion.gripper = event.opening
+    state.emit(MotionLine(t=state.t_ms, request="gripper", decision="set",
+                          opening=event.opening))
+
+
+def on_insert(state: CoreState, event: InsertEvent) -> None:
+    """The contact owner's descent, from where the arm is measured now."""
+    rotation = np.asarray(event.rotation, dtype=float)
+    values = np.array([*event.xy, event.z_end], dtype=float)
+    detail = ""
+    if rotation.shape != (9,) or not (np.isfinite(rotation).all() and np.isfinite(values).all()):
+        detail = "xy, z_end and a 3x3 rotation must be finite numbers"
+    else:
+        try:
+            arm = state.config.limits.arm_mask
+            state.motion.contact.start(state.measured_q[arm], values[:2], float(values[2]),
+                                       rotation.reshape(3, 3))
+        except (NoKinematics, ValueError) as error:
+            detail = str(error)
+    state.emit(MotionLine(t=state.t_ms, request="insert",
+                          decision="refused" if detail else "started", detail=detail or None))

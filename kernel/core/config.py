@@ -2,15 +2,18 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from assurance.cartesian import CartesianMapper
 from assurance.handshake import AllowList, ClientHello, Session
+from assurance.kinematics import ArmKinematics
 from assurance.limits import JointLimits
 from assurance.reasons import ReasonCode
 from assurance.watermarks import WatermarkConfig
+from skills.contact import ContactConfig
 from skills.phases import PhaseBook, TaskPhase
 
 
@@ -41,6 +44,31 @@ class ClientSide:
 
 
 @dataclass(frozen=True, slots=True, eq=False)
+class MotionConfig:
+    """How the core shapes what reaches the arm (the ``motion`` section; all optional)."""
+
+    interpolator_jerk: float = 50.0
+    """rad/s³ per joint: the setpoint interpolator's jerk limit (policy streams, holds)."""
+    planner_velocity: float = 2.0
+    """rad/s: the planner's classical moves go no faster (nor above the robot's limit)."""
+    planner_acceleration: float = 6.0
+    """rad/s²: the planner's acceleration (nor above the robot's limit)."""
+    planner_jerk: float = 60.0
+    """rad/s³: the planner's jerk."""
+    impedance: bool = True
+    """The device takes compliant (impedance) targets from the contact owner; if not, the
+    contact owner's targets go out as position setpoints."""
+    contact: ContactConfig = field(default_factory=ContactConfig)
+
+    def __post_init__(self) -> None:
+        for name in ("interpolator_jerk", "planner_velocity", "planner_acceleration",
+                     "planner_jerk"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f"motion.{name} must be positive and finite, got {value}")
+
+
+@dataclass(frozen=True, slots=True, eq=False)
 class CoreConfig:
     limits: JointLimits
     control_period_ns: int
@@ -61,6 +89,10 @@ class CoreConfig:
     cartesian: CartesianMapper | None = None
     """Maps Cartesian chunks to joint targets; set exactly when the session's frame is
     Cartesian (``base_delta``)."""
+    kinematics: ArmKinematics | None = None
+    """The arm's kinematic model, where the robot names one: the contact owner's descents
+    need it (without it, contact is a compliant hold)."""
+    motion: MotionConfig = field(default_factory=MotionConfig)
 
     def __post_init__(self) -> None:
         if self.control_period_ns <= 0:

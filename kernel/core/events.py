@@ -13,6 +13,7 @@ from typing import Any
 import msgspec
 
 from assurance.envelope import Chunk, MalformedChunk
+from kernel.core.jobs import JobResult
 
 
 class StateEvent(msgspec.Struct, frozen=True, kw_only=True):
@@ -60,8 +61,46 @@ class OperatorEvent(msgspec.Struct, frozen=True, kw_only=True):
 
 
 class ControllerEvent(msgspec.Struct, frozen=True, kw_only=True):
+    """The controller's answer: ``ok``, a refused command (``reject``), a ``fault`` (with the
+    driver's reason code, if it gave one), ``estop`` or ``protective_stop``."""
+
     t: int
     status: str
+    reason: str | None = None
+
+
+class MoveEvent(msgspec.Struct, frozen=True, kw_only=True):
+    """The task asks the planner for a classical rest-to-rest move to the joint ``target``
+    (played while the planner owns the tick; ``move_id`` names it in the core's status)."""
+
+    t: int
+    move_id: int
+    target: tuple[float, ...]
+
+
+class GripperEvent(msgspec.Struct, frozen=True, kw_only=True):
+    """The task sets the gripper's opening (metres); every later command carries it."""
+
+    t: int
+    opening: float
+
+
+class InsertEvent(msgspec.Struct, frozen=True, kw_only=True):
+    """The task starts the contact owner's guarded descent: along the vertical through ``xy``
+    (metres, base frame) down to the TCP height ``z_end``, the tool held at ``rotation``
+    (3×3, row-major)."""
+
+    t: int
+    xy: tuple[float, float]
+    z_end: float
+    rotation: tuple[float, ...]
+
+
+class ComputedEvent(msgspec.Struct, frozen=True, kw_only=True):
+    """A job the core asked for has finished (or failed): admission continues now."""
+
+    t: int
+    result: JobResult
 
 
 class ClockSyncEvent(msgspec.Struct, frozen=True, kw_only=True):
@@ -97,6 +136,7 @@ class ChunkEvent:
 Event = (
     StateEvent | ObservationEvent | PhaseEvent | ForceEvent | OodEvent | LinkEvent
     | HandshakeEvent | OperatorEvent | ControllerEvent | ClockSyncEvent | TickEvent | ChunkEvent
+    | MoveEvent | GripperEvent | InsertEvent | ComputedEvent
 )
 
 OPERATOR_ACTIONS = ("takeover", "release", "accept_recovery", "estop", "reset", "abort")

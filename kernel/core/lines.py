@@ -92,7 +92,23 @@ class RequestLine(msgspec.Struct, frozen=True, kw_only=True, tag_field="kind", t
     low_watermark_ms: Ms = 0
 
 
-Line = ChunkLine | TickLine | TransitionLine | HandshakeLine | QueueLine | RequestLine
+class MotionLine(msgspec.Struct, frozen=True, kw_only=True, tag_field="kind", tag="motion",
+                 omit_defaults=True):
+    """What the core did with a task's motion request: a classical move (``move``, planned or
+    refused when the planner takes it up), the gripper's opening (``gripper``), the contact
+    owner's descent (``insert``)."""
+
+    t: Ms
+    request: str
+    decision: str
+    move_id: int | None = None
+    duration_ms: Ms | None = None
+    opening: float | None = None
+    detail: str | None = None
+
+
+Line = (ChunkLine | TickLine | TransitionLine | HandshakeLine | QueueLine | RequestLine
+        | MotionLine)
 
 _encoder = msgspec.json.Encoder()
 
@@ -104,5 +120,6 @@ def encode(line: Line) -> bytes:
 LINE_TYPES: dict[str, type[Line]] = {
     "chunk": ChunkLine, "tick": TickLine, "transition": TransitionLine,
     "handshake": HandshakeLine, "queue": QueueLine, "request": RequestLine,
+    "motion": MotionLine,
 }
 decoder = msgspec.json.Decoder(Line)

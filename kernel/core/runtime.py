@@ -1,8 +1,10 @@
-"""The core runtime: one object, fed events in time order, returning decisions and log lines.
+"""The core runtime: one object, fed events in time order, returning what it decided.
 
-``handle(event)`` for everything that happens; ``tick(t)`` once per control period. Both return
-the decision-log lines they produced (the live shell also uses the tick's command). Events must
-come in non-decreasing time; the core never reads a clock of its own.
+``step(event)`` is the one entry point: a :class:`~kernel.core.events.TickEvent` once per
+control period, every other event as it happens. It returns a :class:`~kernel.core.effects.Step`:
+the decision-log lines the event produced and the effects the shell must carry out (on a tick,
+exactly one motion effect: the command that reaches the arm). Events must come in
+non-decreasing time; the core never reads a clock of its own.
 """
 
 from __future__ import annotations
@@ -10,17 +12,25 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
+import msgspec
+
+from assurance.fallback import Mode
 from kernel.core import authority
-from kernel.core.admit import admit
+from kernel.core.admit import admit, on_computed
 from kernel.core.config import CoreConfig
+from kernel.core.effects import Step
 from kernel.core.events import (
     ChunkEvent,
     ClockSyncEvent,
+    ComputedEvent,
     ControllerEvent,
     Event,
     ForceEvent,
+    GripperEvent,
     HandshakeEvent,
+    InsertEvent,
     LinkEvent,
+    MoveEvent,
     ObservationEvent,
     OodEvent,
     OperatorEvent,
@@ -28,9 +38,11 @@ from kernel.core.events import (
     StateEvent,
     TickEvent,
 )
-from kernel.core.lines import Line
 from kernel.core.state import CoreState
-from kernel.core.tick import TickCommand, tick
+from kernel.core.tick import tick
+from skills.contact import ContactState
+from skills.phases import TaskPhase
+from skills.planner import MoveStatus
 
 
 class TimeWentBackwards(ValueError):
@@ -49,35 +61,50 @@ _HANDLERS: dict[type, Callable[[CoreState, Any], None]] = {
     ControllerEvent: authority.on_controller,
     ClockSyncEvent: authority.on_clock_sync,
     ChunkEvent: lambda state, event: admit(state, event.chunk),
+    ComputedEvent: lambda state, event: on_computed(state, event.result),
+    MoveEvent: authority.on_move,
+    GripperEvent: authority.on_gripper,
+    InsertEvent: authority.on_insert,
+    TickEvent: lambda state, event: tick(state),
 }
+
+
+class CoreStatus(msgspec.Struct, frozen=True, kw_only=True):
+    """A read-only summary for the task that sequences the core (what it may wait on)."""
+
+    phase: TaskPhase
+    mode: Mode
+    epoch: int
+    move_id: int
+    move: MoveStatus
+    contact: ContactState
+    parked: int
+    """Chunks waiting for a job's result."""
 
 
 class Core:
     def __init__(self, config: CoreConfig) -> None:
         self.config = config
         self.state = CoreState.initial(config)
-        self.last_command: TickCommand | None = None
 
-    def handle(self, event: Event) -> list[Line]:
-        """Apply one event; a :class:`TickEvent` runs a control tick."""
-        self._advance(event.t)
-        if isinstance(event, TickEvent):
-            self.last_command = tick(self.state)
-        else:
-            _HANDLERS[type(event)](self.state, event)
-        return self._drain()
+    def step(self, event: Event) -> Step:
+        """Apply one event; a :class:`TickEvent` runs a control tick.
 
-    def tick(self, t: int) -> tuple[TickCommand, list[Line]]:
-        self._advance(t)
-        command = tick(self.state)
-        self.last_command = command
-        return command, self._drain()
+        Raises:
+            TimeWentBackwards: ``event`` is older than the last one.
+        """
+        state = self.state
+        if event.t < state.t:
+            raise TimeWentBackwards(f"event at {event.t} ns after {state.t} ns")
+        state.t = event.t
+        _HANDLERS[type(event)](state, event)
+        step = Step(tuple(state.lines), tuple(state.effects))
+        state.lines.clear()
+        state.effects.clear()
+        return step
 
-    def _advance(self, t: int) -> None:
-        if t < self.state.t:
-            raise TimeWentBackwards(f"event at {t} ns after {self.state.t} ns")
-        self.state.t = t
-
-    def _drain(self) -> list[Line]:
-        lines, self.state.lines = self.state.lines, []
-        return lines
+    def status(self) -> CoreStatus:
+        state, motion = self.state, self.state.motion
+        return CoreStatus(phase=state.task.phase, mode=state.fallback.mode, epoch=state.epoch,
+                          move_id=motion.move_id, move=motion.move_status,
+                          contact=motion.contact.state, parked=len(state.parked))

@@ -8,6 +8,7 @@ so a decision and its log line can never drift apart.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -20,7 +21,9 @@ from assurance.queue import ActionQueue, Row
 from assurance.reasons import ReasonCode
 from assurance.watermarks import Watermarks
 from kernel.core.config import CoreConfig
+from kernel.core.effects import Effect, EndSession
 from kernel.core.lines import Line, QueueLine, TransitionLine
+from kernel.core.motion import MotionState, initial_motion
 from skills.phases import PhaseCard, TaskPhase
 from skills.task_fsm import TaskDecision, TaskMachine
 
@@ -34,6 +37,7 @@ class CoreState:
     epoch: int
     measured_q: np.ndarray
     clock: ClockMap
+    motion: MotionState
     t: int = 0
     link_up: bool = True
     last_sequence: int | None = None
@@ -54,6 +58,10 @@ class CoreState:
     observations: ObservationLog = field(default_factory=ObservationLog)
     watermarks: Watermarks | None = None
     lines: list[Line] = field(default_factory=list)
+    effects: list[Effect] = field(default_factory=list)
+    parked: dict[int, Any] = field(default_factory=dict)
+    """Chunks waiting for a job's result, by job id (see :mod:`kernel.core.admit`)."""
+    jobs_issued: int = 0
 
     @classmethod
     def initial(cls, config: CoreConfig) -> CoreState:
@@ -62,7 +70,7 @@ class CoreState:
             fallback=FallbackMachine(config.degrade_after), session=config.initial_session,
             epoch=config.initial_epoch, measured_q=config.initial_q.copy(),
             clock=ClockMap(config.clock_uncertainty_ns),
-            memory=ChunkMemory(config.memory_capacity),
+            memory=ChunkMemory(config.memory_capacity), motion=initial_motion(config),
         )
         state.watermarks = Watermarks(config.watermarks)
         return state
@@ -106,6 +114,13 @@ class CoreState:
 
     def emit(self, line: Line) -> None:
         self.lines.append(line)
+
+    def effect(self, effect: Effect) -> None:
+        self.effects.append(effect)
+
+    def next_job_id(self) -> int:
+        self.jobs_issued += 1
+        return self.jobs_issued
 
     def purge(self, reason: ReasonCode | None = None) -> None:
         dropped = self.queue.purge()
@@ -152,6 +167,7 @@ class CoreState:
         self.hold_q = None
         if transition.target is Mode.DEGRADED:
             self.session = None  # DEGRADED returns only through a new handshake
+            self.effect(EndSession(reason=transition.trigger))
         mirrored = {Mode.SAFE_HOLD: TaskPhase.SAFE_HOLD, Mode.HUMAN_RECOVERY:
                     TaskPhase.HUMAN_RECOVERY}.get(transition.target)
         if mirrored is not None:
@@ -163,6 +179,8 @@ class CoreState:
         if decision.accepted:
             self.emit(TransitionLine(t=self.t_ms, machine="task", from_=decision.source,
                                      to=decision.target, trigger=decision.trigger))
+            if decision.target is TaskPhase.CONTACT:
+                self.motion.contact.reset()  # a new contact starts from a compliant hold
             return
         self.emit(TransitionLine(
             t=self.t_ms, machine="task", from_=decision.source, to=decision.source,

@@ -18,13 +18,16 @@ from assurance.fallback import MODES, Command, Mode, Owner
 from assurance.queue import Row
 from assurance.reasons import ReasonCode as R
 from kernel.core.authority import validate
+from kernel.core.effects import RequestObservation
 from kernel.core.lines import QueueLine, RequestLine, SentRef, TickLine
+from kernel.core.motion import MotionContext, motion_for
 from kernel.core.state import CoreState
 from skills.phases import Executor, TaskPhase
 
 
 class TickCommand(msgspec.Struct, frozen=True, eq=False):
-    """What the shell sends this period. ``target`` is a joint vector where one applies."""
+    """Who owns this period and where it may go (``target``: a joint vector where one applies);
+    :mod:`kernel.core.motion` turns it into the one motion effect of the tick."""
 
     command: Command
     owner: Owner
@@ -44,8 +47,21 @@ def tick(state: CoreState) -> TickCommand:
     policy_setpoint = decision.command is Command.SETPOINT and decision.owner is Owner.POLICY
     state.last_setpoint = row if policy_setpoint else None
     _log(state, decision)
+    _command(state, decision, row)
     _maybe_request(state)
     return decision
+
+
+def _command(state: CoreState, decision: TickCommand, row: Row | None) -> None:
+    """The tick's one motion effect: what reaches the arm."""
+    sent = stream = None
+    if decision.sent is not None:
+        sent = (decision.sent.chunk_id, decision.sent.index)
+    if row is not None and decision.owner is Owner.POLICY:
+        stream = (row.segment.step_into(row.row), row.segment.dt)
+    context = MotionContext(state.config, state.t, state.measured_q, state.emit)
+    state.effect(motion_for(state.motion, context, decision.command, decision.owner,
+                            decision.target, sent, stream))
 
 
 def _watchdog(state: CoreState) -> None:
@@ -169,8 +185,9 @@ def _maybe_request(state: CoreState) -> None:
     allowed = state.accepts_proposals and state.link_up and state.session is not None
     depth = state.queue.depth_ns(state.t)
     if marks.should_request(state.t, depth, allowed):
+        rows = state.queue.pending_rows(state.t)
         state.emit(RequestLine(
-            t=state.t_ms, observation_id=state.observations.latest,
-            queue_depth=state.queue.pending_rows(state.t), depth_ms=ns_to_ms(depth),
-            low_watermark_ms=ns_to_ms(marks.low_ns),
+            t=state.t_ms, observation_id=state.observations.latest, queue_depth=rows,
+            depth_ms=ns_to_ms(depth), low_watermark_ms=ns_to_ms(marks.low_ns),
         ))
+        state.effect(RequestObservation(queue_depth=rows))

@@ -1,4 +1,11 @@
-"""The non-event parts of a scenario: robot, timing, phases, session, allowlist → CoreConfig."""
+"""The non-event parts of a scenario: robot, timing, phases, session, allowlist, motion →
+CoreConfig.
+
+These sections fail closed (docs/contract.md §7): an unknown key in ``robot``, ``timing``,
+``phases`` (or a phase card), ``session`` or ``motion`` is an error naming the key, so a
+misspelled limit or threshold can never silently mean its default; every arm joint needs a
+finite position, velocity and acceleration limit.
+"""
 
 from __future__ import annotations
 
@@ -13,7 +20,7 @@ from assurance.handshake import Session
 from assurance.limits import JointLimits
 from assurance.policy import ForceBand, PhasePolicy
 from assurance.watermarks import WatermarkConfig
-from kernel.core.config import ClientSide, CoreConfig
+from kernel.core.config import ClientSide, CoreConfig, MotionConfig
 from kernel.scenario.fields import (
     ScenarioError,
     Where,
@@ -26,14 +33,54 @@ from kernel.scenario.fields import (
     text,
     vector,
 )
-from kernel.scenario.kinematics import cartesian_mapper
+from kernel.scenario.kinematics import cartesian_mapper, robot_kinematics
 from skills.phases import Executor, PhaseBook, PhaseCard, TaskPhase
 
 INITIAL_FINGERPRINT = "scenario-session"
 
+SECTION_KEYS: dict[str, frozenset[str]] = {
+    "robot": frozenset({"dof", "position_limits", "velocity_limits", "acceleration_limits",
+                        "gripper_index", "gripper_event_threshold", "kinematics", "model",
+                        "tcp_frame", "joints", "model_sha256", "workspace"}),
+    "timing": frozenset({"control_period_ms", "clock_uncertainty_ms", "degrade_after",
+                         "state_timeout_ms", "low_watermark_ms", "high_watermark_ms",
+                         "request_retry_ms"}),
+    "session": frozenset({"queue_epoch", "skill", "skill_version", "policy_checkpoint",
+                          "config_hash", "controller_mode", "calibration_epoch",
+                          "observation_keys", "action_dim", "action_units", "action_frame",
+                          "protocol", "phase", "state"}),
+    "motion": frozenset({"interpolator_jerk", "planner_velocity", "planner_acceleration",
+                         "planner_jerk", "impedance"}),
+}
+"""The keys each fail-closed section may hold (``phases`` is checked per card)."""
+PHASE_KEYS = frozenset({"max_observation_age_ms", "max_action_age_ms", "max_divergence",
+                        "max_projection", "trim", "blend", "force_band", "ood_threshold",
+                        "controller_mode", "max_underrun_ms", "executor", "proposals"})
+
+
+def check_keys(doc: Mapping[str, Any], where: Where) -> None:
+    """Refuse any key a fail-closed section does not define, naming it."""
+    for section, known in SECTION_KEYS.items():
+        if isinstance(doc.get(section), dict):
+            _known_only(doc[section], known, where.at(section))
+    phases = doc.get("phases")
+    if isinstance(phases, dict):
+        for name, card in phases.items():
+            if isinstance(card, dict):
+                _known_only(card, PHASE_KEYS, where.at("phases").at(name))
+
+
+def _known_only(table: Mapping[str, Any], known: frozenset[str], where: Where) -> None:
+    for key in table:
+        if key not in known:
+            raise where.at(key).error(f"unknown key (known: {', '.join(sorted(known))})")
+
 
 def build_config(doc: Mapping[str, Any], where: Where) -> CoreConfig:
-    limits = robot_limits(mapping(doc, "robot", where), where.at("robot"))
+    check_keys(doc, where)
+    robot = mapping(doc, "robot", where)
+    limits = robot_limits(robot, where.at("robot"))
+    kinematics = robot_kinematics(robot, where.at("robot"), limits)
     timing = mapping(doc, "timing", where, required=False)
     period = number(timing, "control_period_ms", where.at("timing"), default=2.0, positive=True)
     if ms_to_ns(period) <= 0:
@@ -42,7 +89,7 @@ def build_config(doc: Mapping[str, Any], where: Where) -> CoreConfig:
     uncertainty = number(timing, "clock_uncertainty_ms", where.at("timing"), 0.0, minimum=0)
     session_doc = mapping(doc, "session", where)
     client, session, phase, q0, epoch = _session(session_doc, where.at("session"), limits, period)
-    cartesian = cartesian_mapper(doc, where, limits, client)
+    cartesian = cartesian_mapper(doc, where, limits, client, kinematics)
     if cartesian is None and client.action_dim != limits.dim:
         raise where.at("session").at("action_dim").error(
             f"must be {limits.dim}, one per robot dimension, for joint-space actions, "
@@ -56,7 +103,22 @@ def build_config(doc: Mapping[str, Any], where: Where) -> CoreConfig:
         watermarks=_watermarks(timing, where.at("timing")),
         degrade_after=integer(timing, "degrade_after", where.at("timing"), 3, minimum=1),
         state_timeout_ns=_optional_ms(timing, "state_timeout_ms", where.at("timing")),
-        cartesian=cartesian,
+        cartesian=cartesian, kinematics=kinematics,
+        motion=motion_config(mapping(doc, "motion", where, required=False), where.at("motion")),
+    )
+
+
+def motion_config(doc: Mapping[str, Any], where: Where) -> MotionConfig:
+    default = MotionConfig()
+    return MotionConfig(
+        interpolator_jerk=number(doc, "interpolator_jerk", where, default.interpolator_jerk,
+                                 positive=True),
+        planner_velocity=number(doc, "planner_velocity", where, default.planner_velocity,
+                                positive=True),
+        planner_acceleration=number(doc, "planner_acceleration", where,
+                                    default.planner_acceleration, positive=True),
+        planner_jerk=number(doc, "planner_jerk", where, default.planner_jerk, positive=True),
+        impedance=flag(doc, "impedance", where, default.impedance),
     )
 
 
@@ -96,7 +158,8 @@ def _position_limits(
     here = where.at("position_limits")
     raw = robot.get("position_limits")
     if raw is None:
-        return np.full(dim, -math.inf), np.full(dim, math.inf)
+        raise where.error("missing required key 'position_limits' (every joint needs one: "
+                          "a limit never defaults to unbounded)")
     if is_number(raw):
         bound = abs(float(raw))
         return np.full(dim, -bound), np.full(dim, bound)
@@ -128,7 +191,8 @@ def _rate_limits(
     raw = robot.get(key)
     here = where.at(key)
     if raw is None:
-        return np.full(dim, math.inf)
+        raise where.error(f"missing required key {key!r} (every joint needs one: a limit "
+                          "never defaults to unbounded)")
     if is_number(raw):
         values = [float(raw)] * dim
     else:

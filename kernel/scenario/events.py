@@ -13,10 +13,14 @@ import math
 from collections.abc import Callable, Mapping
 from typing import Any
 
+import msgspec
+
 from assurance.clock import ms_to_ns
 from assurance.envelope import decode_wire_chunk
 from assurance.event_chunk import decode_event_chunk
 from assurance.limits import JointLimits
+from assurance.reasons import ReasonCode
+from kernel.core.effects import Motion
 from kernel.core.events import (
     CONTROLLER_STATUSES,
     LINK_STATUSES,
@@ -24,11 +28,15 @@ from kernel.core.events import (
     REQUESTERS,
     ChunkEvent,
     ClockSyncEvent,
+    ComputedEvent,
     ControllerEvent,
     Event,
     ForceEvent,
+    GripperEvent,
     HandshakeEvent,
+    InsertEvent,
     LinkEvent,
+    MoveEvent,
     ObservationEvent,
     OodEvent,
     OperatorEvent,
@@ -36,6 +44,8 @@ from kernel.core.events import (
     StateEvent,
     TickEvent,
 )
+from kernel.core.jobs import JobResult
+from kernel.journal import Applied, CommandRecord
 from kernel.scenario.config import state_vector
 from kernel.scenario.fields import (
     MAX_MAGNITUDE,
@@ -50,13 +60,16 @@ from kernel.scenario.fields import (
 )
 from skills.phases import TaskPhase
 
-Parser = Callable[[int, Mapping[str, Any], Where, JointLimits], Event]
+Item = Event | CommandRecord
+"""What a scenario or journal line is: an event for the core, or (journals) a command record
+that a replay compares with the command it decides."""
+Parser = Callable[[int, Mapping[str, Any], Where, JointLimits], Item]
 
 
-def parse_events(raw: Any, where: Where, limits: JointLimits) -> list[Event]:
+def parse_events(raw: Any, where: Where, limits: JointLimits) -> list[Item]:
     if not isinstance(raw, list):
         raise where.error("must be a list of events")
-    events: list[Event] = []
+    events: list[Item] = []
     last = 0
     for index, item in enumerate(raw):
         here = where.at(index)
@@ -65,9 +78,14 @@ def parse_events(raw: Any, where: Where, limits: JointLimits) -> list[Event]:
         kind = item.get("kind")
         here = Where(here.file, f"{here.path} ({kind})") if isinstance(kind, str) else here
         t = ms_to_ns(number(item, "t", here, minimum=0))
-        if t < last:
+        if kind == "command":
+            # Written once the driver has answered: events the policy link fed meanwhile may
+            # come first. It names its tick's time, and is not an event for the core.
+            pass
+        elif t < last:
             raise here.error(f"time {item['t']} ms is earlier than the event before it")
-        last = t
+        else:
+            last = t
         parser = _PARSERS.get(kind) if isinstance(kind, str) else None
         if parser is None:
             raise here.at("kind").error(f"unknown event kind {kind!r} "
@@ -154,7 +172,46 @@ def _operator(t: int, item: Mapping[str, Any], where: Where, _: JointLimits) -> 
 
 
 def _controller(t: int, item: Mapping[str, Any], where: Where, _: JointLimits) -> Event:
-    return ControllerEvent(t=t, status=choice(item, "status", where, CONTROLLER_STATUSES))
+    reason = None
+    if item.get("reason") is not None:
+        reason = choice(item, "reason", where, tuple(ReasonCode))
+    return ControllerEvent(t=t, status=choice(item, "status", where, CONTROLLER_STATUSES),
+                           reason=reason)
+
+
+def _move(t: int, item: Mapping[str, Any], where: Where, _: JointLimits) -> Event:
+    return MoveEvent(t=t, move_id=integer(item, "move_id", where, minimum=0),
+                     target=tuple(vector(item.get("target"), where.at("target"))))
+
+
+def _gripper(t: int, item: Mapping[str, Any], where: Where, _: JointLimits) -> Event:
+    return GripperEvent(t=t, opening=number(item, "opening", where, minimum=0))
+
+
+def _insert(t: int, item: Mapping[str, Any], where: Where, _: JointLimits) -> Event:
+    return InsertEvent(t=t, xy=tuple(vector(item.get("xy"), where.at("xy"), 2)),
+                       z_end=number(item, "z_end", where),
+                       rotation=tuple(vector(item.get("rotation"), where.at("rotation"), 9)))
+
+
+def _computed(t: int, item: Mapping[str, Any], where: Where, _: JointLimits) -> Event:
+    return ComputedEvent(t=t, result=_converted(item.get("result"), JobResult,
+                                                where.at("result")))
+
+
+def _command(t: int, item: Mapping[str, Any], where: Where, _: JointLimits) -> Item:
+    applied = item.get("applied")
+    return CommandRecord(
+        t=t, effect=_converted(item.get("effect"), Motion, where.at("effect")),
+        applied=None if applied is None else _converted(applied, Applied, where.at("applied")),
+        origin=choice(item, "origin", where, ("core", "shell"), default="core"))
+
+
+def _converted(raw: Any, kind: Any, where: Where) -> Any:
+    try:
+        return msgspec.convert(raw, kind)
+    except msgspec.ValidationError as error:
+        raise where.error(f"not a valid record: {error}") from None
 
 
 MAX_NS = int(MAX_MAGNITUDE) * 1_000_000
@@ -194,4 +251,9 @@ _PARSERS: dict[str, Parser] = {
     "controller": _controller,
     "clock_sync": _clock_sync,
     "tick": _tick,
+    "move": _move,
+    "gripper": _gripper,
+    "insert": _insert,
+    "computed": _computed,
+    "command": _command,
 }

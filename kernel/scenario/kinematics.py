@@ -1,38 +1,86 @@
-"""The robot's kinematic model and workspace, for sessions that propose Cartesian actions.
+"""The robot's kinematic model and workspace (the ``robot`` keys that name them).
 
-``robot.kinematics`` names a built-in arm model (``"ur5e"``, the MJCF the simulated cell runs);
+``robot.kinematics`` names a model that ships with warden (``"ur5e"``); ``robot.model`` names a
+model file (MJCF ``.xml`` or URDF ``.urdf``) relative to the file that names it, with
+``robot.tcp_frame`` and optionally ``robot.joints`` (see :mod:`kernel.robot_model`). A journal
+also carries ``robot.model_sha256``: the replay refuses a model file that changed since the run.
 ``robot.workspace`` is an axis-aligned box ``{lower: [x, y, z], upper: [x, y, z]}`` in metres,
-base frame, that every proposed TCP position must lie in. Both matter only to a session whose
-``action_frame`` is ``base_delta``, and such a session needs the model.
+base frame, that every proposed TCP position must lie in (Cartesian sessions).
+
+The model is optional for a joint-space session (without it the contact owner can only hold
+compliantly); a Cartesian (``base_delta``) session needs it.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
+from pathlib import Path
 from typing import Any
 
 from assurance.cartesian import BASE_DELTA, CARTESIAN_UNITS, CartesianMapper, action_width
-from assurance.kinematics import ArmKinematics, KinematicsConfig, WorkspaceBox
+from assurance.kinematics import ArmKinematics, WorkspaceBox
 from assurance.limits import JointLimits
 from kernel.core.config import ClientSide
+from kernel.robot_model import BUILTIN, ModelError, ModelSpec, digest, load_kinematics
 from kernel.scenario.fields import Where, mapping, text, vector
 
-MODELS: dict[str, KinematicsConfig] = {"ur5e": KinematicsConfig()}
+
+def robot_kinematics(
+    robot: Mapping[str, Any], where: Where, limits: JointLimits
+) -> ArmKinematics | None:
+    """The arm's kinematics, if the robot section names a model."""
+    spec = model_spec(robot, where)
+    if spec is None:
+        return None
+    expected = robot.get("model_sha256")
+    if expected is not None and digest(spec.path) != text(robot, "model_sha256", where):
+        raise where.at("model_sha256").error(
+            f"{spec.path} changed since this was recorded (its SHA-256 differs)")
+    try:
+        return load_kinematics(spec, int(limits.arm_mask.sum()))
+    except ModelError as error:
+        raise where.at("model" if "model" in robot else "kinematics").error(str(error)) from None
+
+
+def model_spec(robot: Mapping[str, Any], where: Where) -> ModelSpec | None:
+    if robot.get("kinematics") is not None and robot.get("model") is not None:
+        raise where.at("model").error("name either 'kinematics' (a built-in model) or 'model' "
+                                      "(a file), not both")
+    if robot.get("kinematics") is not None:
+        name = text(robot, "kinematics", where)
+        if name not in BUILTIN:
+            raise where.at("kinematics").error(
+                f"unknown model {name!r} (expected one of {', '.join(BUILTIN)})")
+        return BUILTIN[name]
+    if robot.get("model") is None:
+        for key in ("tcp_frame", "joints", "model_sha256"):
+            if key in robot:
+                raise where.at(key).error("needs 'model' (the robot model file)")
+        return None
+    path = Path(text(robot, "model", where))
+    if not path.is_absolute():
+        path = Path(where.file).resolve().parent / path
+    joints = robot.get("joints")
+    if joints is not None and not (isinstance(joints, list) and joints
+                                   and all(isinstance(j, str) and j for j in joints)):
+        raise where.at("joints").error("must be a list of joint names")
+    return ModelSpec(path, text(robot, "tcp_frame", where),
+                     tuple(joints) if joints is not None else None)
 
 
 def cartesian_mapper(
-    doc: Mapping[str, Any], where: Where, limits: JointLimits, client: ClientSide
+    doc: Mapping[str, Any], where: Where, limits: JointLimits, client: ClientSide,
+    kinematics: ArmKinematics | None,
 ) -> CartesianMapper | None:
     """The mapper a Cartesian session needs, None for a joint-space one."""
     robot = mapping(doc, "robot", where)
     here = where.at("robot")
-    model = _model(robot, here)
     workspace = _workspace(robot, here)
     if client.action_frame != BASE_DELTA:
         return None
     session = where.at("session")
-    if model is None:
-        raise here.error(f"needs 'kinematics' (one of {', '.join(MODELS)}) when "
+    if kinematics is None:
+        raise here.error(f"needs 'kinematics' (one of {', '.join(BUILTIN)}) or 'model' when "
                          f"session.action_frame is {BASE_DELTA!r}")
     if client.action_units not in CARTESIAN_UNITS:
         raise session.at("action_units").error(
@@ -44,19 +92,9 @@ def cartesian_mapper(
             f"must be {width} for {client.action_units!r} actions on this robot, "
             f"got {client.action_dim}")
     try:
-        return CartesianMapper(ArmKinematics(model), limits, client.action_units, workspace)
+        return CartesianMapper(kinematics, limits, client.action_units, workspace)
     except ValueError as error:
         raise here.error(str(error)) from None
-
-
-def _model(robot: Mapping[str, Any], where: Where) -> KinematicsConfig | None:
-    if robot.get("kinematics") is None:
-        return None
-    name = text(robot, "kinematics", where)
-    if name not in MODELS:
-        raise where.at("kinematics").error(
-            f"unknown model {name!r} (expected one of {', '.join(MODELS)})")
-    return MODELS[name]
 
 
 def _workspace(robot: Mapping[str, Any], where: Where) -> WorkspaceBox | None:

@@ -18,9 +18,9 @@ from typing import Any
 
 from assurance.clock import ms_to_ns
 from kernel.core.config import CoreConfig
-from kernel.core.events import Event, TickEvent
+from kernel.core.events import TickEvent
 from kernel.scenario.config import build_config
-from kernel.scenario.events import parse_events
+from kernel.scenario.events import Item, parse_events
 from kernel.scenario.fields import ScenarioError, Where, number, text
 
 SCENARIO_FORMAT = "warden-scenario/1"
@@ -32,13 +32,13 @@ class Scenario:
     name: str
     path: str
     config: CoreConfig
-    events: list[Event]
+    events: list[Item]
     until_ns: int
     recorded_ticks: bool
     expect: list[dict[str, Any]] = field(default_factory=list)
     forbid: list[dict[str, Any]] = field(default_factory=list)
 
-    def timeline(self) -> Iterator[Event]:
+    def timeline(self) -> Iterator[Item]:
         """Events in order, with generated ticks after the events of the same instant."""
         if self.recorded_ticks:
             yield from self.events

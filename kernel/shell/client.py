@@ -20,7 +20,6 @@ import asyncio
 import contextlib
 import itertools
 import time
-from collections.abc import Iterable
 from dataclasses import dataclass
 
 import msgspec
@@ -31,7 +30,8 @@ from assurance.envelope import MalformedChunk, decode_wire_chunk
 from assurance.handshake import HandshakeDecision
 from kernel import wire
 from kernel.core import events as ev
-from kernel.core.lines import ChunkLine, HandshakeLine, Line, RequestLine, TransitionLine
+from kernel.core.effects import EndSession, RequestObservation
+from kernel.core.lines import ChunkLine, HandshakeLine
 from kernel.shell.link_types import (
     ClientConfig,
     Gateway,
@@ -85,23 +85,23 @@ class RobotClient:
         self._down_reported = False
         self._healthy = False
         self._observation_ids = itertools.count(1)
+        gateway.on(RequestObservation, self._on_request)
+        gateway.on(EndSession, self._on_session_end)
 
-    # -- the shell's side ------------------------------------------------------------------
+    # -- the core's side ---------------------------------------------------------------------
 
     def request(self) -> None:
         """Send one observation as soon as a session is open (requests coalesce)."""
         self._wanted.set()
 
-    def notify(self, lines: Iterable[Line]) -> None:
-        """Lines the shell got from the core (ticks, its own events): requests, session end."""
-        for line in lines:
-            if isinstance(line, RequestLine):
-                self.request()
-            elif isinstance(line, TransitionLine) and self.state is LinkState.ACCEPTED and (
-                    line.machine == "fallback" and line.to == "DEGRADED" and line.accepted):
-                # The core ended the session (DEGRADED needs a new handshake): reconnect.
-                self._end_reason = ByeReason.SESSION_ENDED
-                self._end.set()
+    def _on_request(self, _: RequestObservation) -> None:
+        self.request()
+
+    def _on_session_end(self, _: EndSession) -> None:
+        """The core ended the session (DEGRADED needs a new handshake): reconnect."""
+        if self.state is LinkState.ACCEPTED:
+            self._end_reason = ByeReason.SESSION_ENDED
+            self._end.set()
 
     def stop(self) -> None:
         """End the session with Bye(shutdown) and make :meth:`run` return."""
@@ -199,9 +199,9 @@ class RobotClient:
     async def _decide(self, link: _Link, offer: wire.Offer) -> None:
         """The core decides; the client only carries its decision back to the server."""
         self._wanted.clear()  # requests made before this handshake are not for its session
-        lines = self._feed(ev.HandshakeEvent(t=self._gateway.now_ns(),
-                                             offer=msgspec.to_builtins(offer.offer)))
-        verdict = next((line for line in lines if isinstance(line, HandshakeLine)), None)
+        step = self._gateway.feed(ev.HandshakeEvent(t=self._gateway.now_ns(),
+                                                    offer=msgspec.to_builtins(offer.offer)))
+        verdict = next((line for line in step.lines if isinstance(line, HandshakeLine)), None)
         if verdict is None:
             raise RuntimeError("the core answered a handshake without a handshake line")
         decision = HandshakeDecision(decision=verdict.decision, fingerprint=verdict.fingerprint,
@@ -226,8 +226,9 @@ class RobotClient:
             raise _LinkEnded(ByeReason.PROTOCOL_VIOLATION, "no usable clock sample")
         self.clock = best
         self.counters.clock_syncs += 1
-        self._feed(ev.ClockSyncEvent(t=self._gateway.now_ns(), domain=wire.SERVER_CLOCK_DOMAIN,
-                                     offset=best.offset, round_trip=best.round_trip))
+        self._gateway.feed(ev.ClockSyncEvent(
+            t=self._gateway.now_ns(), domain=wire.SERVER_CLOCK_DOMAIN, offset=best.offset,
+            round_trip=best.round_trip))
 
     async def _report_clock(self, link: _Link) -> None:
         if link.version is not None and link.version >= 2 and self.clock is not None:
@@ -264,7 +265,7 @@ class RobotClient:
             sample = self._gateway.capture_observation()
             t = self._gateway.now_ns()
             observation_id = f"{self.config.client_id}/{next(self._observation_ids)}"
-            self._feed(ev.ObservationEvent(t=t, observation_id=observation_id))
+            self._gateway.feed(ev.ObservationEvent(t=t, observation_id=observation_id))
             epoch = self._gateway.client_side_hello().queue_epoch
             await self._send(link, wire.Observation(
                 observation_id=observation_id, t_event=t, queue_epoch=epoch,
@@ -324,7 +325,7 @@ class RobotClient:
         chunk = decode_wire_chunk(frame.body, t_receive)
         if isinstance(chunk, MalformedChunk):
             self.counters.malformed += 1
-        for line in self._feed(ev.ChunkEvent(t_receive, chunk, bytes(frame.body))):
+        for line in self._gateway.feed(ev.ChunkEvent(t_receive, chunk, bytes(frame.body))).lines:
             if isinstance(line, ChunkLine):
                 admitted = line.decision in ADMITTED
                 self._healthy |= admitted
@@ -337,11 +338,6 @@ class RobotClient:
             link.pong.set_result((pong.t_server, t_receive))
 
     # -- helpers ---------------------------------------------------------------------------
-
-    def _feed(self, event: ev.Event) -> list[Line]:
-        lines = self._gateway.feed(event)
-        self.notify(lines)
-        return lines
 
     async def _send(self, link: _Link, message: Message) -> None:
         data = wire.encode(message)
@@ -361,6 +357,7 @@ class RobotClient:
     def _report_link(self, up: bool) -> None:
         if up or not self._down_reported:  # one "down" per loss, not one per failed attempt
             self._down_reported = not up
-            self._feed(ev.LinkEvent(t=self._gateway.now_ns(), status="up" if up else "down"))
+            status = "up" if up else "down"
+            self._gateway.feed(ev.LinkEvent(t=self._gateway.now_ns(), status=status))
 
 

@@ -3,26 +3,34 @@
 Everything that happens reaches the core through :meth:`CoreGateway.feed`, stamped with the
 run's clock (nanoseconds since the run started, so journals replay with small exact numbers):
 the control tick's state samples and ticks, the policy link's handshakes and chunks, operator
-actions. Every fed event is journaled, every produced line is recorded and handed to the
-listeners (the policy link wants the inference requests, the summary wants everything).
+actions, job results. Every fed event is journaled and every produced line recorded; the lines
+go to the listeners (the run's summary), and each effect goes to the handlers registered for its
+type (the policy link takes :class:`~kernel.core.effects.RequestObservation` and
+:class:`~kernel.core.effects.EndSession`, the job runner takes
+:class:`~kernel.core.effects.Compute`). The motion effect of a tick goes back to the control
+loop, which writes it to the driver and journals what it wrote and what the driver answered.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import Any, TypeVar
 
 import numpy as np
 
 from assurance.handshake import ClientHello
+from kernel.core.effects import Effect, Motion, Step
 from kernel.core.events import Event, TickEvent
 from kernel.core.lines import Line
-from kernel.core.runtime import Core
-from kernel.core.tick import TickCommand
+from kernel.core.runtime import Core, CoreStatus
+from kernel.journal import Applied, CommandRecord
 from kernel.shell.link_types import RobotSample
 from kernel.shell.recorder import Recorder
 from kernel.shell.timer import Clock
 
-Listener = Callable[[list[Line]], None]
+Listener = Callable[[tuple[Line, ...]], None]
+E = TypeVar("E", bound=Effect)
+_NOTHING = Step((), ())
 
 
 class CoreGateway:
@@ -32,6 +40,7 @@ class CoreGateway:
         self.t0_ns = clock.now_ns()
         self.recorder = recorder
         self.listeners: list[Listener] = []
+        self._handlers: dict[type, list[Callable[[Any], None]]] = {}
         self.robot = RobotSample(q=core.state.measured_q.copy(), task_phase=core.state.task.phase)
         self.closed = False
 
@@ -43,23 +52,38 @@ class CoreGateway:
         goodbye afterwards is not a fallback of the run)."""
         self.closed = True
 
-    def feed(self, event: Event) -> list[Line]:
+    def on(self, kind: type[E], handler: Callable[[E], None]) -> None:
+        """Call ``handler`` with every effect of type ``kind`` the core produces."""
+        self._handlers.setdefault(kind, []).append(handler)
+
+    def feed(self, event: Event) -> Step:
         if self.closed:
-            return []
-        lines = self.core.handle(event)
+            return _NOTHING
+        step = self.core.step(event)
         if self.recorder is not None:
             self.recorder.event(event)
-            self.recorder.lines(lines)
+            self.recorder.lines(step.lines)
         for listener in self.listeners:
-            listener(lines)
-        return lines
+            listener(step.lines)
+        for effect in step.effects:
+            for handler in self._handlers.get(type(effect), ()):
+                handler(effect)
+        return step
 
-    def tick(self, t_ns: int | None = None) -> TickCommand:
-        self.feed(TickEvent(t=self.now_ns() if t_ns is None else t_ns))
-        command = self.core.last_command
-        if command is None:  # cannot happen: a TickEvent always produces a command
-            raise RuntimeError("the core produced no tick command")
-        return command
+    def tick(self, t_ns: int) -> Motion | None:
+        """Run the control tick at ``t_ns``: the command the core decided for the arm (None
+        only once the run is over)."""
+        return self.feed(TickEvent(t=t_ns)).motion
+
+    def record_command(self, t_ns: int, effect: Motion, applied: Applied | None,
+                       origin: str = "core") -> None:
+        """Journal what was written to the driver and what the driver answered."""
+        if self.recorder is not None and not self.closed:
+            self.recorder.command(CommandRecord(t=t_ns, effect=effect, applied=applied,
+                                                origin=origin))
+
+    def status(self) -> CoreStatus:
+        return self.core.status()
 
     def client_side_hello(self) -> ClientHello:
         return self.core.config.client.hello(self.core.state.epoch)

@@ -3,16 +3,17 @@
 from __future__ import annotations
 
 import uuid
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from enum import StrEnum
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 
 from assurance.handshake import ClientHello
 from kernel import wire
 from kernel.core import events as ev
-from kernel.core.lines import Line
+from kernel.core.effects import Step
 
 
 @dataclass(frozen=True, slots=True)
@@ -30,13 +31,16 @@ class Gateway(Protocol):
     """The shell object that owns the core and the robot state.
 
     ``now_ns``: the client's monotonic clock, the core's time base. ``feed``: apply one event
-    to the core, return the lines it produced. ``client_side_hello``: this client's handshake
-    side with the core's current queue epoch. ``capture_observation``: the robot, measured now.
+    to the core, return what it produced. ``on``: have the core's effects of a type handed to a
+    handler. ``client_side_hello``: this client's handshake side with the core's current queue
+    epoch. ``capture_observation``: the robot, measured now.
     """
 
     def now_ns(self) -> int: ...
 
-    def feed(self, event: ev.Event) -> list[Line]: ...
+    def feed(self, event: ev.Event) -> Step: ...
+
+    def on(self, kind: type, handler: Callable[[Any], None]) -> None: ...
 
     def client_side_hello(self) -> ClientHello: ...
 

@@ -25,7 +25,7 @@ from typing import IO, Any
 
 from kernel.core.events import Event
 from kernel.core.lines import Line, encode
-from kernel.journal import event_record
+from kernel.journal import CommandRecord, command_line, event_record
 
 
 @dataclass
@@ -73,7 +73,17 @@ class Recorder:
         self._events.append(json.dumps(event_record(event), allow_nan=True))
         self.stats.events += 1
 
-    def lines(self, lines: list[Line]) -> None:
+    def command(self, record: CommandRecord) -> None:
+        """A command as written to the driver, with its answer (a journal line like an event)."""
+        if self._journal is None:
+            return
+        if len(self._events) + self._queued >= self._max:
+            self._count_gap(1)
+            return
+        self._events.append(command_line(record).decode())
+        self.stats.events += 1
+
+    def lines(self, lines: tuple[Line, ...] | list[Line]) -> None:
         if self._decisions is None or not lines:
             return
         if len(self._lines) + self._queued >= self._max:

@@ -77,6 +77,13 @@ class MujocoPlantConfig:
     """Steps the grip is left to settle when ``reset`` places the peg between the pads."""
 
 
+def _load_model(path: Path) -> mujoco.MjModel:
+    """The model at ``path``; the cell's ``<include>`` of the arm gets the arm model's file
+    (it lives with the manifests, as data, not beside the cell)."""
+    assets = {rm.CELL_ARM_INCLUDE: rm.ARM_MODEL.read_bytes()}
+    return mujoco.MjModel.from_xml_string(path.read_text(encoding="utf-8"), assets)
+
+
 def _vector(values: Sequence[float], n: int, what: str) -> np.ndarray:
     """A float vector of length ``n``; finiteness is checked by the range check that follows."""
     array = np.array(values, dtype=float)
@@ -111,7 +118,7 @@ class MujocoPlant:
         self, config: MujocoPlantConfig | None = None, q0: Sequence[float] | None = None
     ) -> None:
         self.config = config or MujocoPlantConfig()
-        self.model = mujoco.MjModel.from_xml_path(str(self.config.model_path))
+        self.model = _load_model(self.config.model_path)
         if round(self.model.opt.timestep * 1e9) != _TIMESTEP_NS:
             raise ValueError(f"{self.config.model_path} has timestep {self.model.opt.timestep} s,"
                              " the plant runs at 0.002 s")

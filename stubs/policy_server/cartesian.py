@@ -11,13 +11,13 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 
-from assurance.kinematics import ArmKinematics
 from stubs.policy_server.envelope import ActionFrame, ActionUnits
+from stubs.robot_model.kinematics import arm_kinematics
 
 
 class CartesianOutput:
     def __init__(self, units: str) -> None:
-        self.kinematics = ArmKinematics()
+        self.kinematics = arm_kinematics()
         self.rotations = units == ActionUnits.METRES_RADIANS
 
     def __call__(self, q_obs: np.ndarray, joint_actions: np.ndarray) -> np.ndarray:

@@ -1,9 +1,10 @@
 """The simulated cell's robot model: file paths, joint names and the cell's nominal poses.
 
-``ur5e.xml`` is the single source of truth for the arm: MuJoCo loads it (alone, or through
-``<include>`` in ``cell.xml``) and Pinocchio loads the same file with
-``pin.buildModelFromMJCF``. The world frame of the cell is the arm's base frame (the real
-controller's "base" frame), with the table top at z = 0.
+``manifests/models/ur5e.xml`` is the single source of truth for the arm: it is data the
+manifests name (``robot.kinematics = "ur5e"``), Pinocchio loads it for the runtime, and MuJoCo
+loads the same file (alone, or as the ``<include>`` of the simulated cell, ``cell.xml`` here).
+The world frame of the cell is the arm's base frame (the real controller's "base" frame), with
+the table top at z = 0.
 
 The poses below mirror ``cell.xml``; ``tests/plant/test_mujoco_plant.py`` checks that they
 agree with the compiled model, so edit both together.
@@ -16,8 +17,11 @@ from pathlib import Path
 
 _HERE = Path(__file__).resolve().parent
 
-ARM_MODEL: Path = _HERE / "ur5e.xml"
+ARM_MODEL: Path = _HERE.parents[1] / "manifests" / "models" / "ur5e.xml"
 CELL_MODEL: Path = _HERE / "cell.xml"
+CELL_ARM_INCLUDE = "ur5e.xml"
+"""The file name ``cell.xml`` includes the arm by: the plant hands ``ARM_MODEL``'s bytes to
+MuJoCo under this name."""
 
 ARM_JOINT_NAMES: tuple[str, ...] = (
     "shoulder_pan_joint",

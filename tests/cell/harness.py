@@ -5,8 +5,9 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
+from kernel.core.lines import encode
 from kernel.manifest import ClockKind, Manifest, load_manifest
-from kernel.replay import replay_bytes
+from kernel.replay import Replay
 from kernel.scenario import load_scenario
 
 MANIFESTS = Path(__file__).resolve().parents[2] / "manifests"
@@ -24,6 +25,9 @@ def run_dir(journal_root: Path) -> Path:
 
 
 def replays_identically(directory: Path) -> bool:
-    """The journal of a run, replayed, gives the run's decision log byte for byte."""
-    replayed = replay_bytes(load_scenario(directory / "journal.jsonl"))
-    return replayed == (directory / "decisions.jsonl").read_bytes()
+    """The journal of a run, replayed, gives the run's decision log byte for byte and every
+    command the run wrote to its driver bit for bit."""
+    replay = Replay(load_scenario(directory / "journal.jsonl"))
+    replayed = b"".join(encode(line) + b"\n" for line in replay.lines())
+    return (replayed == (directory / "decisions.jsonl").read_bytes()
+            and replay.first_difference is None and replay.commands_checked > 0)

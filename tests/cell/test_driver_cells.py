@@ -14,8 +14,8 @@ from typing import Any
 import numpy as np
 import pytest
 
-from kernel.cell.live import run_live
-from kernel.cell.session import RunContext
+from kernel.app.live import run_live
+from kernel.app.session import RunContext
 from kernel.shell.loop import run
 from tests.cell.harness import manifest, replays_identically, run_dir
 

@@ -9,8 +9,8 @@ from typing import Any
 
 import pytest
 
-from kernel.cell.emulated import LAUNCHERS
 from kernel.manifest import Manifest, ManifestError
+from stubs.cell.emulated import LAUNCHERS
 from tests.cell.harness import manifest
 
 

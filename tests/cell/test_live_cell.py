@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from kernel.cell.live import run_live
+from kernel.app.live import run_live
 from kernel.shell.loop import run
 from tests.cell.harness import manifest, replays_identically, run_dir
 

@@ -12,6 +12,7 @@ from assurance.cartesian import MAPPING_IK, CartesianMapper
 from assurance.kinematics import ArmKinematics, Pose, WorkspaceBox
 from assurance.limits import JointLimits
 from stubs.policy_server.cartesian import CartesianOutput
+from stubs.robot_model.kinematics import arm_kinematics
 
 Q0 = np.array([0.0, -1.2, 1.5, -1.87, -1.57, 0.0])
 ARM = JointLimits(np.full(6, -6.28), np.full(6, 6.28), np.full(6, 3.14), np.full(6, 40.0))
@@ -22,7 +23,7 @@ WITH_GRIPPER = JointLimits(np.r_[np.full(6, -6.28), 0.0], np.r_[np.full(6, 6.28)
 
 @pytest.fixture(scope="module")
 def kin() -> ArmKinematics:
-    return ArmKinematics()
+    return arm_kinematics()
 
 
 def _descent(count: int, step: float = 0.001) -> np.ndarray:
@@ -92,7 +93,7 @@ def test_the_mapper_refuses_a_robot_the_model_does_not_describe(kin: ArmKinemati
        speed=st.floats(0.0005, 0.004))
 def test_small_paths_map_inside_the_limits_and_onto_the_targets(
         direction: list[float], speed: float) -> None:
-    kin = ArmKinematics()
+    kin = arm_kinematics()
     unit = np.array(direction) / max(np.linalg.norm(direction), 1e-9)
     actions = np.array([unit * speed * k for k in range(1, 11)])
     mapped = CartesianMapper(kin, ARM, "m").to_joints(actions, Q0)

@@ -18,13 +18,14 @@ from assurance.kinematics import (
     WorkspaceBox,
 )
 from stubs import robot_model as rm
+from stubs.robot_model.kinematics import arm_kinematics
 
 PROPERTY = settings(max_examples=40, deadline=None)
 
 
 @pytest.fixture(scope="module")
 def kin() -> ArmKinematics:
-    return ArmKinematics()
+    return arm_kinematics()
 
 
 @pytest.fixture(scope="module")
@@ -195,7 +196,8 @@ def test_workspace_box():
 
 
 def test_unknown_frame_or_joint_is_a_clear_error():
+    model = pin.buildModelFromMJCF(str(rm.ARM_MODEL))
     with pytest.raises(ValueError, match="no frame"):
-        ArmKinematics(KinematicsConfig(tcp_frame="nope"))
+        ArmKinematics(KinematicsConfig(model, "nope", rm.ARM_JOINT_NAMES))
     with pytest.raises(ValueError, match="no joints"):
-        ArmKinematics(KinematicsConfig(arm_joints=("shoulder_pan_joint", "nope")))
+        ArmKinematics(KinematicsConfig(model, rm.TCP_SITE, ("shoulder_pan_joint", "nope")))

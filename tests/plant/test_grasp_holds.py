@@ -21,6 +21,7 @@ from skills.interpolator import SetpointInterpolator
 from skills.trajectory import MotionLimits, plan_joint_move
 from stubs import robot_model as rm
 from stubs.plant.mujoco_plant import MujocoPlant
+from stubs.robot_model.kinematics import arm_kinematics
 
 DT = 0.002
 PERIOD_TICKS = 10  # a new target every 20 ms
@@ -34,7 +35,7 @@ TILT_LIMIT = np.radians(0.05)
 
 @pytest.fixture(scope="module")
 def kin() -> ArmKinematics:
-    return ArmKinematics()
+    return arm_kinematics()
 
 
 def above(point: np.ndarray, height: float) -> np.ndarray:

@@ -14,6 +14,7 @@ from skills.trajectory import MotionLimits, plan_joint_move
 from stubs import robot_model as rm
 from stubs.plant.base import Plant
 from stubs.plant.mujoco_plant import ControlMode, MujocoPlant, MujocoPlantConfig, PlantDiverged
+from stubs.robot_model.kinematics import arm_kinematics
 
 DT = 0.002
 HOME = np.array(rm.HOME_Q)
@@ -27,7 +28,7 @@ INSERT_DAMPING = 2 * np.sqrt(INSERT_STIFFNESS * np.array([2.0, 2.0, 0.6, 0.15, 0
 
 @pytest.fixture(scope="module")
 def kin() -> ArmKinematics:
-    return ArmKinematics()
+    return arm_kinematics()
 
 
 @pytest.fixture

@@ -7,8 +7,12 @@ from typing import Any
 import numpy as np
 
 from assurance.event_chunk import decode_event_chunk
+from assurance.queue import Row
 from kernel.core.config import CoreConfig
-from kernel.core.events import ChunkEvent
+from kernel.core.effects import Step
+from kernel.core.events import ChunkEvent, Event, TickEvent
+from kernel.core.lines import Line
+from kernel.core.runtime import Core
 from kernel.scenario.config import build_config
 from kernel.scenario.fields import Where
 from tools.scenarios.base import IDENTITY, ScenarioSpec
@@ -41,3 +45,18 @@ def chunk_fields(
 def chunk_event(t_ms: float, fields: dict[str, Any]) -> ChunkEvent:
     t = round(t_ms * 1_000_000)
     return ChunkEvent(t, decode_event_chunk(fields, t))
+
+
+# -- the one door to the core in these tests -------------------------------------------------
+
+
+def feed(core: Core, event: Event) -> tuple[Line, ...]:
+    """Apply one event; the decision-log lines it produced."""
+    return core.step(event).lines
+
+
+def tick(core: Core, t_ns: int) -> tuple[Row | None, Step]:
+    """Run a control tick: the queued row it sent as a policy setpoint (None if it sent none),
+    and the step (its lines, and its motion effect: what reached the arm)."""
+    step = core.step(TickEvent(t=t_ns))
+    return core.state.last_setpoint, step

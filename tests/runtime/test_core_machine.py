@@ -17,6 +17,8 @@ from hypothesis import event, settings
 from hypothesis import strategies as st
 from hypothesis.stateful import RuleBasedStateMachine, initialize, invariant, rule
 
+from assurance.queue import Row
+from kernel.core.effects import Motion, Retreat, Setpoint
 from kernel.core.events import (
     ControllerEvent,
     ForceEvent,
@@ -30,7 +32,15 @@ from kernel.core.events import (
 )
 from kernel.core.lines import ChunkLine, TickLine, TransitionLine
 from kernel.core.runtime import Core
-from tests.runtime.machine_setup import DT_MS, PERIOD_MS, chunk_event, chunk_fields, core_config
+from tests.runtime.machine_setup import (
+    DT_MS,
+    PERIOD_MS,
+    chunk_event,
+    chunk_fields,
+    core_config,
+    feed,
+    tick,
+)
 from tools.scenarios.base import EVIDENCE, offer
 
 EPS = 1e-9
@@ -51,6 +61,7 @@ class CoreMachine(RuleBasedStateMachine):
         self.refused: set[str] = set()
         self.in_estop = False
         self.run: list[tuple[str, int, np.ndarray]] = []
+        self.commanded: list[np.ndarray] = []
 
     # -- time ----------------------------------------------------------------------------------
 
@@ -58,9 +69,10 @@ class CoreMachine(RuleBasedStateMachine):
     def advance(self, ms: int) -> None:
         target = self.t_ms + ms
         while self.next_tick_ms <= target:
-            command, lines = self.core.tick(self.next_tick_ms * 1_000_000)
-            self._check_lines(lines)
-            self._check_command(command)
+            row, step = tick(self.core, self.next_tick_ms * 1_000_000)
+            self._check_lines(step.lines)
+            self._check_row(row)
+            self._check_motion(step.motion)
             self.next_tick_ms += PERIOD_MS
         self.t_ms = target
 
@@ -69,7 +81,7 @@ class CoreMachine(RuleBasedStateMachine):
         self.advance(ms)
 
     def _feed(self, event) -> None:  # type: ignore[no-untyped-def]
-        self._check_lines(self.core.handle(event))
+        self._check_lines(feed(self.core, event))
 
     def _ns(self) -> int:
         return self.t_ms * 1_000_000
@@ -212,20 +224,42 @@ class CoreMachine(RuleBasedStateMachine):
         if line.sent is not None:
             assert line.sent.chunk_id not in self.refused, line
 
-    def _check_command(self, command) -> None:  # type: ignore[no-untyped-def]
-        if command.sent is None:
+    def _check_motion(self, motion: Motion | None) -> None:
+        """What reaches the arm, period by period, stays inside every limit (the interpolator
+        and the planner shape it; the device's own stop or hold restarts the check)."""
+        assert motion is not None, "a tick without its motion effect"
+        if not isinstance(motion, Setpoint | Retreat):
+            self.commanded = []
+            return
+        limits, dt = self.config.limits, PERIOD_MS / 1000
+        arm = limits.arm_mask
+        q = np.asarray(motion.q)
+        assert np.all(q >= limits.lower[arm] - EPS) and np.all(q <= limits.upper[arm] + EPS)
+        self.commanded = [*self.commanded[-2:], q]
+        if len(self.commanded) >= 2:
+            step = np.abs(self.commanded[-1] - self.commanded[-2])
+            assert np.all(step <= limits.velocity[arm] * dt * (1 + 1e-6) + 1e-9), step
+        if len(self.commanded) == 3:
+            a, b, c = self.commanded
+            change = np.abs(c - 2 * b + a)
+            assert np.all(change <= limits.acceleration[arm] * dt * dt * (1 + 1e-6) + 1e-9)
+        if isinstance(motion, Setpoint) and motion.chunk_id is not None:
+            assert motion.chunk_id not in self.refused, motion
+
+    def _check_row(self, row: Row | None) -> None:
+        if row is None:
             self.run = []
             return
         limits = self.config.limits
-        q = np.asarray(command.target)
+        q = np.asarray(row.q)
         assert np.all(q >= limits.lower - EPS) and np.all(q <= limits.upper + EPS)
-        key = (command.sent.chunk_id, command.sent.index)
+        key = (row.segment.chunk_id, row.chunk_index)
         if self.run and (self.run[-1][0], self.run[-1][1]) == key:
             return
         self.run.append((*key, q))
         event("setpoint run length >= 3" if len(self.run) >= 3 else "setpoint sent")
         self._check_rates()
-        age_ms = self.next_tick_ms - command.t_obs / 1e6
+        age_ms = self.next_tick_ms - row.segment.t_obs / 1e6
         policy = self.core.state.card.policy
         unc_ms = self.config.clock_uncertainty_ns / 1e6
         assert age_ms + unc_ms <= policy.max_action_age_ns / 1e6 + 1e-6

@@ -24,7 +24,7 @@ def _log(scenario: Scenario, extra: list[ChunkEvent]) -> list[bytes]:
     variant = Scenario(scenario.name, scenario.path, scenario.config, events,
                        scenario.until_ns, scenario.recorded_ticks)
     core = Core(variant.config)
-    return [encode(line) for event in variant.timeline() for line in core.handle(event)]
+    return [encode(line) for event in variant.timeline() for line in core.step(event).lines]
 
 
 @st.composite

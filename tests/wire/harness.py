@@ -2,8 +2,9 @@
 
 :class:`LoopbackGateway` is the gateway a test shell provides: a :class:`kernel.core.runtime.Core`
 built from the standard cell of ``tools/scenarios/base.py`` (no session until a handshake, as
-in a live run), an arm that follows every command exactly, and a control tick loop that passes
-the core's lines (its inference requests) to the client. Nothing of the core is mocked.
+in a live run), an arm that follows every command exactly, and a control tick loop; the core's
+effects (inference requests, the end of a session) reach the client through the handlers it
+registers, as in a live run. Nothing of the core is mocked.
 """
 
 from __future__ import annotations
@@ -19,7 +20,8 @@ from typing import Any
 import numpy as np
 
 from assurance.handshake import ClientHello
-from kernel.core.events import Event, LinkEvent, StateEvent
+from kernel.core.effects import Hold, Step, Stop
+from kernel.core.events import Event, LinkEvent, StateEvent, TickEvent
 from kernel.core.lines import ChunkLine, HandshakeLine, Line, TickLine
 from kernel.core.runtime import Core
 from kernel.scenario.config import build_config
@@ -44,6 +46,7 @@ class LoopbackGateway:
         self.events: list[Event] = []
         self.lines: list[Line] = []
         self.client: RobotClient | None = None
+        self.handlers: dict[type, list[Callable[[Any], None]]] = {}
         self.origin_ns = time.monotonic_ns()
 
     # -- the Gateway protocol ------------------------------------------------------------------
@@ -51,11 +54,17 @@ class LoopbackGateway:
     def now_ns(self) -> int:
         return time.monotonic_ns() - self.origin_ns
 
-    def feed(self, event: Event) -> list[Line]:
+    def feed(self, event: Event) -> Step:
         self.events.append(event)
-        lines = self.core.handle(event)
-        self.lines.extend(lines)
-        return lines
+        step = self.core.step(event)
+        self.lines.extend(step.lines)
+        for effect in step.effects:
+            for handler in self.handlers.get(type(effect), ()):
+                handler(effect)
+        return step
+
+    def on(self, kind: type, handler: Callable[[Any], None]) -> None:
+        self.handlers.setdefault(kind, []).append(handler)
 
     def client_side_hello(self) -> ClientHello:
         return self.config.client.hello(self.core.state.epoch)
@@ -67,13 +76,10 @@ class LoopbackGateway:
     # -- the shell's control loop --------------------------------------------------------------
 
     def tick(self) -> None:
-        command, lines = self.core.tick(self.now_ns())
-        self.lines.extend(lines)
-        if command.target is not None:
-            self.q = np.array(command.target, dtype=float)
-        lines += self.feed(StateEvent(t=self.now_ns(), q=tuple(self.q)))
-        if self.client is not None:
-            self.client.notify(lines)
+        motion = self.feed(TickEvent(t=self.now_ns())).motion
+        if motion is not None and not isinstance(motion, Hold | Stop):
+            self.q = np.array(motion.q, dtype=float)
+        self.feed(StateEvent(t=self.now_ns(), q=tuple(self.q)))
 
     async def run_ticks(self, stop: asyncio.Event, period_s: float = 0.004) -> None:
         while not stop.is_set():

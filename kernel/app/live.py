@@ -1,9 +1,9 @@
 """The cell on the wall clock: a kernel timer paces the control loop, the policy server runs as
 a separate process on loopback, and the policy link talks to it over a real websocket.
 
-Tasks live in one supervisor: the recorder and the control loop are critical (their failure
-ends the run, after the arm is held), the policy link is not (a crash is a lost link: the core
-degrades, the link is restarted and must handshake again).
+Tasks live in one supervisor: the recorder, the control loop and the job worker are critical
+(their failure ends the run, after the arm is held), the policy link is not (a crash is a lost
+link: the core degrades, the link is restarted and must handshake again).
 """
 
 from __future__ import annotations
@@ -16,12 +16,12 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import structlog
 
-from kernel.cell.build import POLICY_ACCELERATION, POLICY_SPEED, offer_for
-from kernel.cell.report import CycleProgress
-from kernel.cell.session import RunContext, bring_up, finish, open_run, report_progress
+from kernel.app import standins
+from kernel.app.compose import source_of
+from kernel.app.report import CycleProgress
+from kernel.app.session import RunContext, bring_up, finish, open_run, report_progress
 from kernel.core.events import LinkEvent
 from kernel.manifest import Manifest
 from kernel.shell.client import RobotClient
@@ -30,7 +30,7 @@ from kernel.shell.realtime import restore, try_realtime
 from kernel.shell.supervisor import RestartPolicy, Supervisor
 from kernel.shell.systemd import ServiceNotifier
 from kernel.shell.timer import MonotonicClock, PeriodicTimer
-from stubs.process import EmulatorProcess
+from kernel.shell.worker import JobWorker
 
 log = structlog.get_logger("warden.run")
 EARLY_WAKE_NS = 200_000
@@ -45,7 +45,8 @@ async def run_live(manifest: Manifest, journal_dir: Path | None,
                    progress: CycleProgress | None = None,
                    hook: TickHook | None = None) -> dict[str, Any]:
     context = open_run(manifest, MonotonicClock(), journal_dir, progress)
-    server: EmulatorProcess | None = None
+    server: Any = None
+    worker = JobWorker(context.cell.gateway, context.sections, source_of(manifest))
     realtime = try_realtime()
     log.info("scheduling", detail=realtime.summary())
     service = ServiceNotifier.from_env()
@@ -56,18 +57,20 @@ async def run_live(manifest: Manifest, journal_dir: Path | None,
         # A stop requested during start-up (device bring-up, policy server start) is kept and
         # honoured before the first tick, through the same orderly shutdown.
         with _stop_on_signals(loop):
+            worker.start()
             await bring_up(context)  # a device that is not there fails here, before anything
+            url = f"ws://{manifest.policy.host}:{manifest.policy.port}"
+            if not loop.stop_requested and manifest.policy.launch:
+                server = standins.load(standins.POLICIES, "reference")(context.cell.context)
+                url = server.start()
             if not loop.stop_requested:
-                server = _policy_server(manifest, context.cell.policy_goal)
-            if not loop.stop_requested:
-                client = RobotClient(ClientConfig(url=_url(manifest, server)),
-                                     context.cell.gateway)
-                context.cell.gateway.listeners.append(client.notify)
-                await _supervise(context, client, loop, failures)
+                client = RobotClient(ClientConfig(url=url), context.cell.gateway)
+                await _supervise(context, client, worker, loop, failures)
     finally:
         service.stopping("holding the arm and closing the device")
         await context.cell.driver.aclose()
         context.cell.world.close()
+        worker.close()
         gc.unfreeze()  # let the collector see the run's objects again before the process ends
         restore(realtime)
         service.close()
@@ -80,6 +83,7 @@ async def run_live(manifest: Manifest, journal_dir: Path | None,
         "timed_out": not (context.cell.controller.finished or loop.stop_requested),
         "task_failures": failures, "loop": {"realtime": realtime.summary()},
         "link": {k: v for k, v in client.counters.snapshot().items() if v} if client else {},
+        "jobs": {"done": worker.done, "failed": worker.failed},
         "service": {"notify": service.enabled, "sent": service.stats.sent,
                     "failed": service.stats.failed},
     })
@@ -97,7 +101,7 @@ class _Loop:
 
     async def run(self) -> None:
         manifest, cell = self.context.manifest, self.context.cell
-        period = manifest.core.control_period_ns
+        period = cell.core.config.control_period_ns
         budget_ns = round(manifest.cell.cycle_timeout_s * 1e9) * manifest.cell.cycles
         cell.controller.start()
         async with PeriodicTimer(period, early_ns=EARLY_WAKE_NS) as timer:
@@ -125,8 +129,8 @@ class _Loop:
             self.service.status(status)
 
 
-async def _supervise(context: RunContext, client: RobotClient, loop: _Loop,
-                     failures: list[str]) -> None:
+async def _supervise(context: RunContext, client: RobotClient, worker: JobWorker,
+                     loop: _Loop, failures: list[str]) -> None:
     def failed(name: str, error: BaseException) -> None:
         task_failed(context, failures, name, error)
 
@@ -152,6 +156,7 @@ async def _supervise(context: RunContext, client: RobotClient, loop: _Loop,
 
     async with Supervisor(on_failure=failed) as supervisor:
         await supervisor.start("recorder", context.recorder.run, critical=True)
+        await supervisor.start("jobs", worker.run, critical=True)
         await supervisor.start("policy-link", link, critical=False,
                                restart=RestartPolicy(max_restarts=10))
         await supervisor.start("control", control, critical=True)
@@ -189,35 +194,3 @@ def _stop_on_signals(loop: _Loop) -> Iterator[None]:
     finally:
         for signum in signals:
             event_loop.remove_signal_handler(signum)
-
-
-def _policy_server(manifest: Manifest, goal: np.ndarray) -> EmulatorProcess | None:
-    settings = manifest.policy
-    if not settings.launch:
-        return None
-    offer = offer_for(manifest)
-    args = [
-        "--host", settings.host, "--port", str(settings.port),
-        "--goal", ",".join(f"{v:.9f}" for v in goal), "--max-speed", str(POLICY_SPEED),
-        "--max-acceleration", str(POLICY_ACCELERATION),
-        "--noise", str(settings.noise_rad), "--horizon", str(settings.chunk_horizon),
-        "--action-dt-ms", str(settings.action_dt_ms),
-        "--latency-median-ms", str(settings.latency_median_ms),
-        "--latency-p95-ms", str(settings.latency_p95_ms),
-        "--clock-offset-ms", str(settings.clock_offset_ms), "--seed", str(manifest.cell.seed),
-        "--checkpoint", offer.policy_checkpoint, "--config-hash", offer.config_hash,
-        "--observation-keys", ",".join(offer.observation_keys),
-        "--action-dim", str(offer.action_dim), "--action-units", offer.action_units,
-        "--action-frame", offer.action_frame, "--skill", offer.skill or "",
-        "--skill-version", offer.skill_version or "",
-        "--controller-mode", offer.controller_mode or "",
-        "--calibration-epoch", str(offer.calibration_epoch),
-        "--protocol", f"{offer.protocol[0]},{offer.protocol[1]}",
-        "--replacement-policy", "blend",
-    ]
-    return EmulatorProcess("stubs.policy_server", *args).start()
-
-
-def _url(manifest: Manifest, server: EmulatorProcess | None) -> str:
-    port = server.info["port"] if server is not None else manifest.policy.port
-    return f"ws://{manifest.policy.host}:{port}"

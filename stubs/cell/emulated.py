@@ -9,14 +9,12 @@ test-only control port (see :mod:`stubs.plant.world_port`), never over the robot
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from drivers import registry
 from drivers.base import Driver, DriverInitError
-from drivers.settings import SettingsError
+from kernel.app.device import driver_from_manifest
 from kernel.manifest import Manifest, ManifestError
 from stubs.fault_control import inject
 from stubs.process import EmulatorProcess, EmulatorStartError
@@ -109,46 +107,15 @@ LAUNCHERS: dict[str, Callable[[Manifest, str], Launch]] = {
 }
 
 
-def driver_from_manifest(manifest: Manifest, table: Mapping[str, Any]) -> Driver:
-    """The manifest's driver, built through the registry; bad settings name the key."""
-    where = f"{manifest.path}: driver"
-    try:
-        return registry.load(manifest.driver_name).from_mapping(
-            table, where, name=manifest.driver_name)
-    except registry.UnknownDriver as error:
-        raise ManifestError(f"{where}.name: {error}") from None
-    except (SettingsError, ValueError) as error:
-        raise ManifestError(str(error)) from None
-
-
-class DeviceWorld:
-    """A real device: the driver only. Nothing here can see ground truth or feed parts."""
-
-    def __init__(self, manifest: Manifest) -> None:
-        self._driver = driver_from_manifest(manifest, manifest.driver_settings)
-
-    def driver(self) -> Driver:
-        return self._driver
-
-    def advance(self) -> None:
-        """The device moves in real time on its own."""
-
-    def insertion_depth(self) -> float:
-        return math.nan  # no independent evaluator on this cell: VERIFY cannot pass
-
-    def feed_peg(self) -> None:
-        """Parts are presented by the real cell."""
-
-    def close(self) -> None:
-        """The driver's aclose releases the device."""
-
-
 class EmulatorWorld:
+    """A vendor driver's emulator process with the MuJoCo plant behind it (the
+    ``warden.worlds`` entry point of ``ur_rtde``, ``dynamixel`` and ``canopen402``)."""
+
     def __init__(self, manifest: Manifest) -> None:
         launcher = LAUNCHERS.get(manifest.driver_name)
         if launcher is None:
             raise ManifestError(f"{manifest.path}: driver.name: no emulator for "
-                                f"{manifest.driver_name!r} (known: sim, {', '.join(LAUNCHERS)})")
+                                f"{manifest.driver_name!r} (known: {', '.join(LAUNCHERS)})")
         # Settings first, with stand-ins for the emulator's address: a mistake is named by key
         # before any process starts (the emulator would refuse some of them less clearly).
         driver_from_manifest(manifest, {**ADDRESS_STAND_INS.get(manifest.driver_name, {}),
@@ -179,7 +146,7 @@ class EmulatorWorld:
     def insertion_depth(self) -> float:
         return float(inject(self.control, "ground_truth")["insertion_depth"])
 
-    def feed_peg(self) -> None:
+    def feed_part(self) -> None:
         inject(self.control, "feed_peg")
 
     def inject(self, fault: str, **fields: Any) -> dict[str, Any]:

@@ -1,37 +1,27 @@
-"""What the cell runs against, and what only the simulation can tell (ground truth).
+"""The simulated cell in process: the MuJoCo plant behind the plant driver.
 
-A ``World`` owns the physical side the driver talks to. For the in-process plant it also steps
-the physics, one control period per tick (the plant runs in lockstep with the control loop,
-whichever clock paces that loop). For an emulated device the emulator steps its own plant and
-the world only starts and stops it.
+The world steps the physics one control period per tick (the plant runs in lockstep with the
+control loop, whichever clock paces that loop) and tells what only a simulation can: the
+ground truth the evaluator reads, and a parts feeder.
 """
 
 from __future__ import annotations
 
 import threading
-from typing import Protocol
 
 from drivers.base import Driver
 from drivers.sim.driver import SimDriver
+from kernel.manifest import Manifest, ManifestError
 from stubs.plant.mujoco_plant import MujocoPlant
 
 
-class World(Protocol):
-    def driver(self) -> Driver: ...
-
-    def advance(self) -> None:
-        """One control period of physics has passed (no-op where the device steps itself)."""
-        ...
-
-    def insertion_depth(self) -> float:
-        """Ground truth for the independent evaluator, metres."""
-        ...
-
-    def feed_peg(self) -> None:
-        """The feeder presents a new peg for the next cycle."""
-        ...
-
-    def close(self) -> None: ...
+def sim_world(manifest: Manifest) -> SimWorld:
+    """The ``sim`` world for a manifest (the ``warden.worlds`` entry point)."""
+    if manifest.driver_settings:
+        key = next(iter(manifest.driver_settings))
+        raise ManifestError(f"{manifest.path}: driver.{key}: unknown key (the sim driver "
+                            "takes no settings)")
+    return SimWorld(manifest.core.control_period_ns)
 
 
 class SimWorld:
@@ -57,7 +47,7 @@ class SimWorld:
         with self._lock:
             return self.plant.ground_truth().insertion_depth
 
-    def feed_peg(self) -> None:
+    def feed_part(self) -> None:
         with self._lock:
             self.plant.respawn_peg()
 

@@ -1,7 +1,8 @@
 """The cell on a virtual clock: plant, policy and core step together, as fast as they can.
 
 Deterministic for a given manifest and seed: the policy runs in process with seeded latency
-and noise, and every tick advances the virtual clock by exactly one control period.
+and noise, admission's long work runs inline at the instant it is asked for, and every tick
+advances the virtual clock by exactly one control period.
 """
 
 from __future__ import annotations
@@ -9,12 +10,12 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from kernel.cell.build import offer_for, policy_model
-from kernel.cell.local_policy import LocalPolicyConfig, LocalPolicyLink
-from kernel.cell.report import CycleProgress
-from kernel.cell.session import bring_up, finish, open_run, report_progress
+from kernel.app import standins
+from kernel.app.report import CycleProgress
+from kernel.app.session import bring_up, finish, open_run, report_progress
 from kernel.manifest import Manifest, ManifestError
 from kernel.shell.timer import VirtualClock
+from kernel.shell.worker import InlineJobs
 
 
 async def run_lockstep(manifest: Manifest, journal_dir: Path | None,
@@ -25,11 +26,9 @@ async def run_lockstep(manifest: Manifest, journal_dir: Path | None,
     clock = VirtualClock()
     context = open_run(manifest, clock, journal_dir, progress)
     cell = context.cell
-    policy, latency = policy_model(manifest, cell.policy_goal)
-    link = LocalPolicyLink(
-        LocalPolicyConfig(offer_for(manifest), policy, latency, seed=manifest.cell.seed),
-        cell.gateway)
-    period = manifest.core.control_period_ns
+    jobs = InlineJobs(cell.gateway)
+    link = standins.load(standins.POLICIES, "local")(cell.context, clock)
+    period = cell.core.config.control_period_ns
     budget_ns = round(manifest.cell.cycle_timeout_s * 1e9) * manifest.cell.cycles
     try:
         await bring_up(context)
@@ -47,4 +46,4 @@ async def run_lockstep(manifest: Manifest, journal_dir: Path | None,
         context.files.close()
     timed_out = not cell.controller.finished
     return finish(context, {"clock": "virtual", "timed_out": timed_out,
-                            "link": {"requests": link.requests}})
+                            "link": {"requests": link.requests}, "jobs": {"done": jobs.done}})

@@ -12,11 +12,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
 
-import numpy as np
-
-from drivers.base import ControlConfig, DriverError
-from kernel.cell.build import Cell, build_cell
-from kernel.cell.report import CycleProgress
+from drivers.base import ControlConfig
+from kernel.app.compose import Cell, build_cell, effective, world_for
+from kernel.app.report import CycleProgress
 from kernel.journal import header
 from kernel.manifest import Manifest
 from kernel.shell.recorder import Recorder, open_run_files
@@ -42,6 +40,8 @@ class RunContext:
     cell: Cell
     recorder: Recorder
     files: RunFiles
+    sections: dict[str, Any]
+    """The sections the journal's header carries (what rebuilds this run's core exactly)."""
     summary: RunSummary = field(default_factory=RunSummary)
     lateness_ns: list[int] = field(default_factory=list)
     misses: int = 0
@@ -49,15 +49,20 @@ class RunContext:
 
 def open_run(manifest: Manifest, clock: Clock, journal_dir: Path | None,
              progress: CycleProgress | None) -> RunContext:
-    files = RunFiles()
-    if journal_dir is not None:
-        files.directory, files.journal, files.decisions = open_run_files(journal_dir,
-                                                                         manifest.name)
-    head = header({**manifest.sections, "session": {**manifest.sections["session"]}},
-                  manifest.name)
-    recorder = Recorder(files.journal, files.decisions, head)
-    cell = build_cell(manifest, clock, recorder)
-    context = RunContext(manifest, cell, recorder, files)
+    """The world, the run's files and the cell; on any failure nothing is left running."""
+    world = world_for(manifest)
+    try:
+        config, sections = effective(manifest, world)
+        files = RunFiles()
+        if journal_dir is not None:
+            files.directory, files.journal, files.decisions = open_run_files(journal_dir,
+                                                                             manifest.name)
+        recorder = Recorder(files.journal, files.decisions, header(sections, manifest.name))
+        cell = build_cell(manifest, config, world, clock, recorder)
+    except BaseException:
+        world.close()  # an emulator already started must not outlive a failed build
+        raise
+    context = RunContext(manifest, cell, recorder, files, sections)
     cell.gateway.listeners.append(context.summary.observe_all)
     cell.controller.on_cycle = _on_cycle(context, progress)
     return context
@@ -72,23 +77,17 @@ def _on_cycle(context: RunContext, progress: CycleProgress | None):  # type: ign
 
 
 async def bring_up(context: RunContext) -> None:
-    """Connect, configure and activate the driver; hold where the arm is."""
-    limits = context.manifest.core.limits
+    """Connect, configure and activate the driver. The core's motion starts at its first tick
+    from the first measured sample: a real device starts wherever it was parked."""
+    config = context.cell.core.config
+    limits = config.limits
     arm = limits.arm_mask
     control = ControlConfig(
-        dof=int(arm.sum()), period_ns=context.manifest.core.control_period_ns,
+        dof=int(arm.sum()), period_ns=config.control_period_ns,
         q_lower=tuple(limits.lower[arm].tolist()), q_upper=tuple(limits.upper[arm].tolist()),
         v_max=tuple(limits.velocity[arm].tolist()))
     await context.cell.driver.configure(control)
     await context.cell.driver.activate()
-    # A real device starts wherever it was parked, not at the layout's home: the first command
-    # must hold that pose, so motion restarts from the first measured sample.
-    try:
-        sample = await context.cell.driver.read()
-    except DriverError:
-        return  # FAULT: the first tick reports it, and the core stops the device
-    if sample.q:
-        context.cell.controller.motion.restart_from(np.array(sample.q))
 
 
 def report_progress(context: RunContext, progress: CycleProgress | None) -> None:

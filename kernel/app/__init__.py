@@ -1,0 +1,1 @@
+"""The application: the composition root, the control loop, lockstep and wall-clock runs."""
