@@ -7,10 +7,11 @@ every controlword it receives (SDO or RPDO), ``fault`` when a drive fault occurs
 
 from __future__ import annotations
 
-from drivers.canopen402.tables import STATE_BITS, Command, DriveState
+from stubs.cia402_drive.profile import STATE_STATUS, ControlBit, PowerState, StatusBit
+from stubs.cia402_drive.profile import DeviceCommand as Command
 
-S = DriveState
-TRANSITIONS: dict[tuple[DriveState, Command], DriveState] = {
+S = PowerState
+TRANSITIONS: dict[tuple[PowerState, Command], PowerState] = {
     (S.SWITCH_ON_DISABLED, Command.SHUTDOWN): S.READY_TO_SWITCH_ON,  # 2
     (S.READY_TO_SWITCH_ON, Command.SWITCH_ON): S.SWITCHED_ON,  # 3
     (S.READY_TO_SWITCH_ON, Command.ENABLE_OPERATION): S.OPERATION_ENABLED,  # 3 then 4
@@ -31,23 +32,25 @@ RESUMABLE_QUICK_STOP = range(5, 9)
 
 
 def decode_command(controlword: int) -> Command | None:
-    """The device-control command in a controlword (bits 0-3; bit 7 is the fault reset)."""
-    if controlword & 0x80:
+    """The device-control command in a controlword (bits 0-3, CiA 402-2 table 31); None while
+    the fault-reset bit is set (a reset is its rising edge, handled on its own)."""
+    bits = ControlBit(controlword & 0xFF)
+    if ControlBit.FAULT_RESET in bits:
         return None
-    if not controlword & 0x02:
+    if ControlBit.ENABLE_VOLTAGE not in bits:
         return Command.DISABLE_VOLTAGE
-    if not controlword & 0x04:
+    if ControlBit.QUICK_STOP not in bits:  # active low
         return Command.QUICK_STOP
-    if not controlword & 0x01:
+    if ControlBit.SWITCH_ON not in bits:
         return Command.SHUTDOWN
-    if not controlword & 0x08:
+    if ControlBit.ENABLE_OPERATION not in bits:
         return Command.SWITCH_ON
     return Command.ENABLE_OPERATION
 
 
 class PowerStateMachine:
     def __init__(self) -> None:
-        self.state = DriveState.SWITCH_ON_DISABLED  # transitions 0 and 1 happen at boot
+        self.state = PowerState.SWITCH_ON_DISABLED  # transitions 0 and 1 happen at boot
         self.quick_stop_option = 2
         self.quick_stop_input_active = False
         """A quick stop the drive makes itself (its input) holds until the input is released."""
@@ -55,7 +58,8 @@ class PowerStateMachine:
 
     def on_controlword(self, controlword: int, fault_cleared: bool = True) -> bool:
         """Apply one controlword; True if it was a fault reset that left FAULT (15)."""
-        rising_reset = bool(controlword & 0x80) and not self._last_controlword & 0x80
+        reset = ControlBit.FAULT_RESET
+        rising_reset = bool(controlword & reset) and not self._last_controlword & reset
         self._last_controlword = controlword
         if self.state is S.FAULT:
             if rising_reset and fault_cleared:
@@ -92,6 +96,6 @@ class PowerStateMachine:
     def enabled(self) -> bool:
         return self.state is S.OPERATION_ENABLED
 
-    def statusword_bits(self) -> int:
-        return STATE_BITS[self.state]
+    def statusword_bits(self) -> StatusBit:
+        return STATE_STATUS[self.state]
 
