@@ -7,7 +7,9 @@ import pytest
 from assurance.reasons import ReasonCode
 from drivers.base import ControlConfig
 from drivers.sim.driver import SimDriver, SimFaults
+from drivers.sim.plant import PlantReading, SimulatedPlant
 from stubs.plant.base import KinematicPlant
+from stubs.plant.mujoco_plant import MujocoPlant
 from tests.conformance.suite import DriverConformance, Harness
 
 PERIOD_NS = 2_000_000
@@ -42,3 +44,11 @@ def harness() -> Harness:
 
 class TestSimDriverConformance(DriverConformance):
     FAULTS = ("estop", "protective_stop", "disconnected")
+
+
+@pytest.mark.parametrize("make_plant", [KinematicPlant, MujocoPlant])
+def test_the_stand_in_plants_are_what_the_driver_needs(make_plant: type) -> None:
+    """The driver names what it needs of a plant; the plants provide it without importing it."""
+    plant = make_plant()
+    assert isinstance(plant, SimulatedPlant)
+    assert isinstance(plant.state(), PlantReading)
