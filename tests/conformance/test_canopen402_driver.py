@@ -17,11 +17,11 @@ import pytest
 
 from assurance.reasons import ReasonCode
 from drivers.canopen402 import CiA402Driver
+from drivers.testing import DriverConformance, Harness
 from stubs.cia402_drive import DriveEmulator
 from stubs.cia402_drive.launch import unique_udp_bus
 from stubs.fault_control import inject
 from stubs.process import EmulatorProcess
-from tests.conformance.suite import DriverConformance, Harness
 from tests.drivers import cia402_testbed as arm
 
 FAULTED_NODE = 3
