@@ -115,7 +115,7 @@ class EmulatedDrive:
         word = self.machine.statusword_bits() | StatusBit.REMOTE
         if self.follows_target:
             word |= StatusBit.FOLLOWS_COMMAND
-        return int(word)
+        return word
 
     def _on_read(self, index: int, subindex: int, od: object) -> int | None:
         live = self._live.get(index)

@@ -7,45 +7,48 @@ every controlword it receives (SDO or RPDO), ``fault`` when a drive fault occurs
 
 from __future__ import annotations
 
-from stubs.cia402_drive.profile import STATE_STATUS, ControlBit, PowerState, StatusBit
-from stubs.cia402_drive.profile import DeviceCommand as Command
+from stubs.cia402_drive.profile import (
+    STATE_STATUS,
+    ControlBit,
+    DeviceCommand,
+    PowerState,
+)
 
 S = PowerState
-TRANSITIONS: dict[tuple[PowerState, Command], PowerState] = {
-    (S.SWITCH_ON_DISABLED, Command.SHUTDOWN): S.READY_TO_SWITCH_ON,  # 2
-    (S.READY_TO_SWITCH_ON, Command.SWITCH_ON): S.SWITCHED_ON,  # 3
-    (S.READY_TO_SWITCH_ON, Command.ENABLE_OPERATION): S.OPERATION_ENABLED,  # 3 then 4
-    (S.READY_TO_SWITCH_ON, Command.DISABLE_VOLTAGE): S.SWITCH_ON_DISABLED,  # 7
-    (S.READY_TO_SWITCH_ON, Command.QUICK_STOP): S.SWITCH_ON_DISABLED,  # 7
-    (S.SWITCHED_ON, Command.ENABLE_OPERATION): S.OPERATION_ENABLED,  # 4
-    (S.SWITCHED_ON, Command.SHUTDOWN): S.READY_TO_SWITCH_ON,  # 6
-    (S.SWITCHED_ON, Command.DISABLE_VOLTAGE): S.SWITCH_ON_DISABLED,  # 10
-    (S.SWITCHED_ON, Command.QUICK_STOP): S.SWITCH_ON_DISABLED,  # 10
-    (S.OPERATION_ENABLED, Command.SWITCH_ON): S.SWITCHED_ON,  # 5 (disable operation)
-    (S.OPERATION_ENABLED, Command.SHUTDOWN): S.READY_TO_SWITCH_ON,  # 8
-    (S.OPERATION_ENABLED, Command.DISABLE_VOLTAGE): S.SWITCH_ON_DISABLED,  # 9
-    (S.OPERATION_ENABLED, Command.QUICK_STOP): S.QUICK_STOP_ACTIVE,  # 11
-    (S.QUICK_STOP_ACTIVE, Command.DISABLE_VOLTAGE): S.SWITCH_ON_DISABLED,  # 12
+TRANSITIONS: dict[tuple[PowerState, DeviceCommand], PowerState] = {
+    (S.SWITCH_ON_DISABLED, DeviceCommand.SHUTDOWN): S.READY_TO_SWITCH_ON,  # 2
+    (S.READY_TO_SWITCH_ON, DeviceCommand.SWITCH_ON): S.SWITCHED_ON,  # 3
+    (S.READY_TO_SWITCH_ON, DeviceCommand.ENABLE_OPERATION): S.OPERATION_ENABLED,  # 3 then 4
+    (S.READY_TO_SWITCH_ON, DeviceCommand.DISABLE_VOLTAGE): S.SWITCH_ON_DISABLED,  # 7
+    (S.READY_TO_SWITCH_ON, DeviceCommand.QUICK_STOP): S.SWITCH_ON_DISABLED,  # 7
+    (S.SWITCHED_ON, DeviceCommand.ENABLE_OPERATION): S.OPERATION_ENABLED,  # 4
+    (S.SWITCHED_ON, DeviceCommand.SHUTDOWN): S.READY_TO_SWITCH_ON,  # 6
+    (S.SWITCHED_ON, DeviceCommand.DISABLE_VOLTAGE): S.SWITCH_ON_DISABLED,  # 10
+    (S.SWITCHED_ON, DeviceCommand.QUICK_STOP): S.SWITCH_ON_DISABLED,  # 10
+    (S.OPERATION_ENABLED, DeviceCommand.SWITCH_ON): S.SWITCHED_ON,  # 5 (disable operation)
+    (S.OPERATION_ENABLED, DeviceCommand.SHUTDOWN): S.READY_TO_SWITCH_ON,  # 8
+    (S.OPERATION_ENABLED, DeviceCommand.DISABLE_VOLTAGE): S.SWITCH_ON_DISABLED,  # 9
+    (S.OPERATION_ENABLED, DeviceCommand.QUICK_STOP): S.QUICK_STOP_ACTIVE,  # 11
+    (S.QUICK_STOP_ACTIVE, DeviceCommand.DISABLE_VOLTAGE): S.SWITCH_ON_DISABLED,  # 12
 }
 RESUMABLE_QUICK_STOP = range(5, 9)
 """0x605A values after which the drive stays in QUICK STOP ACTIVE and may resume (16)."""
 
 
-def decode_command(controlword: int) -> Command | None:
+def decode_command(controlword: int) -> DeviceCommand | None:
     """The device-control command in a controlword (bits 0-3, CiA 402-2 table 31); None while
     the fault-reset bit is set (a reset is its rising edge, handled on its own)."""
-    bits = ControlBit(controlword & 0xFF)
-    if ControlBit.FAULT_RESET in bits:
+    if controlword & ControlBit.FAULT_RESET:
         return None
-    if ControlBit.ENABLE_VOLTAGE not in bits:
-        return Command.DISABLE_VOLTAGE
-    if ControlBit.QUICK_STOP not in bits:  # active low
-        return Command.QUICK_STOP
-    if ControlBit.SWITCH_ON not in bits:
-        return Command.SHUTDOWN
-    if ControlBit.ENABLE_OPERATION not in bits:
-        return Command.SWITCH_ON
-    return Command.ENABLE_OPERATION
+    if not controlword & ControlBit.ENABLE_VOLTAGE:
+        return DeviceCommand.DISABLE_VOLTAGE
+    if not controlword & ControlBit.QUICK_STOP:  # active low
+        return DeviceCommand.QUICK_STOP
+    if not controlword & ControlBit.SWITCH_ON:
+        return DeviceCommand.SHUTDOWN
+    if not controlword & ControlBit.ENABLE_OPERATION:
+        return DeviceCommand.SWITCH_ON
+    return DeviceCommand.ENABLE_OPERATION
 
 
 class PowerStateMachine:
@@ -69,7 +72,7 @@ class PowerStateMachine:
         command = decode_command(controlword)
         if command is None:
             return False
-        if (self.state, command) == (S.QUICK_STOP_ACTIVE, Command.ENABLE_OPERATION):
+        if (self.state, command) == (S.QUICK_STOP_ACTIVE, DeviceCommand.ENABLE_OPERATION):
             if self.quick_stop_option in RESUMABLE_QUICK_STOP and not self.quick_stop_input_active:
                 self.state = S.OPERATION_ENABLED  # 16
             return False
@@ -96,6 +99,6 @@ class PowerStateMachine:
     def enabled(self) -> bool:
         return self.state is S.OPERATION_ENABLED
 
-    def statusword_bits(self) -> StatusBit:
+    def statusword_bits(self) -> int:
         return STATE_STATUS[self.state]
 
