@@ -20,7 +20,11 @@ import os
 import sys
 import time
 from collections.abc import Iterator
+from pathlib import Path
 from typing import Any
+
+if __package__ in (None, ""):  # run as a script: make the repository (and its tests) importable
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import numpy as np
 import uvloop
@@ -29,8 +33,9 @@ from drivers.base import Command, CommandKind, DriverError
 from drivers.canopen402 import CiA402Driver, CiA402Settings
 from drivers.lifecycle import ManagedDriver
 from stubs.cia402_drive import DriveEmulator
-from stubs.cia402_drive import testbed as arm
+from stubs.cia402_drive.launch import unique_udp_bus
 from stubs.process import EmulatorProcess
+from tests.drivers import cia402_testbed as arm
 
 RATES_HZ = (100, 250, 500, 1000)
 MAX_MISS_FRACTION = 0.01
@@ -70,7 +75,7 @@ def _emulated_arm(transport: str) -> Iterator[CiA402Settings]:
         with DriveEmulator(arm.emulator_config("virtual", channel)):
             yield arm.driver_settings("virtual", channel)
         return
-    group, port = arm.unique_udp_bus()
+    group, port = unique_udp_bus()
     with EmulatorProcess("stubs.cia402_drive", *arm.emulator_args(group, port)):
         yield arm.driver_settings("udp_multicast", group, udp_port=port)
 

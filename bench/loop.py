@@ -5,9 +5,10 @@ so that a change in machine load hits both; each gets ``--seconds`` in total on 
   (a) ``PeriodicTimer`` fired ``--early-us`` before each deadline plus a busy-wait, with the loop
       thread at SCHED_FIFO and memory locked when permitted (the report says whether it was);
   (b) ``asyncio.sleep`` until each absolute deadline (drift-free, so only the wake-up differs).
-The same load runs on the loop in both: a telemetry producer (20k events/s) into a drop-oldest
-``Channel``, a consumer encoding at most 200 events per 2 ms with msgspec, and 10 Hz chunks
-(msgpack encode + decode of a 50x6 frame, then a few hundred microseconds of numpy work).
+The same load runs on the loop in both: a telemetry producer (20k events/s) into a bounded
+drop-oldest buffer (4096 events), a consumer encoding at most 200 events per 2 ms with msgspec,
+and 10 Hz chunks (msgpack encode + decode of a 50x6 frame, then a few hundred microseconds of
+numpy work). The control loop adds one telemetry event per tick to the same buffer.
 
 Lateness is measured against the first deadline not yet served (a tick after a stall counts the
 whole stall). A miss is a tick later than half a period, or a skipped period. The first 200 ms of
@@ -23,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import collections
 import gc
 import os
 import sys
@@ -37,7 +39,6 @@ if __package__ in (None, ""):  # run as a script: make the repository importable
 import msgspec
 import numpy as np
 
-from kernel.shell.channels import Channel, Policy
 from kernel.shell.loop import loop_name, run
 from kernel.shell.realtime import restore, try_realtime
 from kernel.shell.supervisor import Started, Supervisor
@@ -45,6 +46,7 @@ from kernel.shell.timer import PeriodicTimer, Schedule, Tick, Timer
 
 US = 1_000
 WARMUP_NS = 200_000_000
+TELEMETRY_BUFFER = 4096
 TARGETS = {"p99_us": 200, "p999_us": 1000, "miss_pct": 0.5, "ratio": 5.0}
 
 
@@ -102,6 +104,26 @@ class LoadStats:
     batch_us: list[float] = field(default_factory=list)
 
 
+class TelemetryBuffer:
+    """Bounded, newest kept: when full, an event pushes out the oldest one (counted), so a slow
+    encoder never makes the producer (the control loop among them) wait or grow memory."""
+
+    def __init__(self, maxlen: int) -> None:
+        self._events: collections.deque[Event] = collections.deque(maxlen=maxlen)
+        self.dropped = 0
+        self.peak = 0
+
+    def put(self, event: Event) -> None:
+        if len(self._events) == self._events.maxlen:
+            self.dropped += 1  # the append below pushes the oldest out
+        self._events.append(event)
+        self.peak = max(self.peak, len(self._events))
+
+    def take(self, limit: int) -> list[Event]:
+        """Up to ``limit`` of the oldest events (a batch for the encoder); may be empty."""
+        return [self._events.popleft() for _ in range(min(limit, len(self._events)))]
+
+
 class SleepTimer:
     """The naive variant: ``asyncio.sleep`` to each absolute deadline, same labelling."""
 
@@ -145,7 +167,8 @@ VARIANTS = (
 
 
 # -- load --------------------------------------------------------------------------------------
-async def produce(channel: Channel[Event], rate: int, stats: LoadStats, started: Started) -> None:
+async def produce(telemetry: TelemetryBuffer, rate: int, stats: LoadStats,
+                  started: Started) -> None:
     start, sent = time.monotonic_ns(), 0
     started()
     while True:
@@ -153,18 +176,18 @@ async def produce(channel: Channel[Event], rate: int, stats: LoadStats, started:
         now = time.monotonic_ns()
         due = (now - start) * rate // 1_000_000_000
         for seq in range(sent, due):
-            channel.send_nowait(Event(seq, now, seq & 7, seq * 0.5))
+            telemetry.put(Event(seq, now, seq & 7, seq * 0.5))
         stats.sent += due - sent
         sent = due
 
 
-async def consume(channel: Channel[Event], stats: LoadStats, started: Started) -> None:
+async def consume(telemetry: TelemetryBuffer, stats: LoadStats, started: Started) -> None:
     encoder = msgspec.msgpack.Encoder()
     started()
     while True:
         await asyncio.sleep(0.002)
         t0 = time.perf_counter_ns()
-        batch = channel.drain_nowait(200)  # small batches: the longest callback sets the tail
+        batch = telemetry.take(200)  # small batches: the longest callback sets the tail
         if batch:
             encoder.encode(batch)
             stats.encoded += len(batch)
@@ -212,7 +235,7 @@ async def chunks(reps: int, stats: LoadStats, started: Started) -> None:
 
 # -- control loop ------------------------------------------------------------------------------
 async def control(timer: Timer, seconds: float, out: Samples,
-                  telemetry: Channel[Event] | None) -> None:
+                  telemetry: TelemetryBuffer | None) -> None:
     start = time.monotonic_ns()
     warm, end = start + WARMUP_NS, start + WARMUP_NS + int(seconds * 1e9)
     setpoint = np.zeros(6)
@@ -222,7 +245,7 @@ async def control(timer: Timer, seconds: float, out: Samples,
             return
         np.clip(setpoint + 0.001, -1.0, 1.0, out=setpoint)  # a tiny stand-in control law
         if telemetry is not None:
-            telemetry.send_nowait(Event(tick.index, tick.woke_ns, 9, float(setpoint[0])))
+            telemetry.put(Event(tick.index, tick.woke_ns, 9, float(setpoint[0])))
         if tick.woke_ns >= warm:
             out.lateness_ns.append(tick.lateness_ns + tick.skipped * timer.period_ns)
             out.skipped += tick.skipped
@@ -231,20 +254,21 @@ async def control(timer: Timer, seconds: float, out: Samples,
 
 async def segment(cfg: Config, variant: Variant, seconds: float, out: Samples, load: LoadStats,
                   reps: int) -> None:
-    channel: Channel[Event] = Channel(4096, Policy.DROP_OLDEST)
+    telemetry = TelemetryBuffer(TELEMETRY_BUFFER)
     # Before the load starts: mlockall can block the loop for tens of milliseconds.
     report = try_realtime(cfg.priority) if variant.realtime and cfg.realtime else None
     try:
         async with Supervisor() as sup:
             if cfg.load:
-                await sup.start("telemetry", lambda s: produce(channel, cfg.events_per_s, load, s),
+                await sup.start("telemetry",
+                                lambda s: produce(telemetry, cfg.events_per_s, load, s),
                                 critical=True)
-                await sup.start("encoder", lambda s: consume(channel, load, s), critical=True)
+                await sup.start("encoder", lambda s: consume(telemetry, load, s), critical=True)
                 await sup.start("chunks", lambda s: chunks(reps, load, s), critical=True)
             timer = variant.timer(cfg)
             steal0, total0 = _steal()
             try:
-                await control(timer, seconds, out, channel if cfg.load else None)
+                await control(timer, seconds, out, telemetry if cfg.load else None)
             finally:
                 timer.close()
                 steal1, total1 = _steal()
@@ -254,9 +278,8 @@ async def segment(cfg: Config, variant: Variant, seconds: float, out: Samples, l
         if report is not None:
             restore(report)
             out.realtime.append(report.summary())
-    stats = channel.statistics()
-    load.dropped += stats.dropped
-    load.peak = max(load.peak, stats.peak_size)
+    load.dropped += telemetry.dropped
+    load.peak = max(load.peak, telemetry.peak)
 
 
 async def bench(cfg: Config) -> tuple[dict[str, Samples], dict[str, LoadStats], str, int]:

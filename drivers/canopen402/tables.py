@@ -1,9 +1,9 @@
 """CiA 301 / CiA 402 as plain data: object indices, drive states, controlword commands, EMCY codes.
 
-Both sides use these tables: the driver to decode what a drive reports, the emulator in
-``stubs/cia402_drive`` to produce it. Because one table on both sides could agree with itself
-and still be wrong, tests/drivers/test_canopen402_tables.py checks it against canopen's own
-``State402`` masks and transition commands.
+The driver decodes what a drive reports with these tables. The emulator in ``stubs/cia402_drive``
+has its own, written separately from the standard (a table shared by both sides could agree
+with itself and still be wrong); tests/drivers/test_canopen402_tables.py checks each against
+canopen's own ``State402`` masks and transition commands.
 """
 
 from __future__ import annotations
@@ -12,7 +12,8 @@ from enum import IntEnum, StrEnum
 from pathlib import Path
 
 DEFAULT_EDS = Path(__file__).with_name("cia402_drive.eds")
-"""Object dictionary of a generic CSP servo drive; the emulator serves exactly this one."""
+"""EDS of a generic CSP servo drive: the dictionary the emulator serves (it builds its own in
+code; tests/drivers/test_cia402_dictionary.py checks that this file describes it)."""
 
 DEVICE_PROFILE_402 = 402
 """Low 16 bits of 0x1000 (device type) on a drive that implements CiA 402."""

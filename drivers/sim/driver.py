@@ -1,8 +1,8 @@
 """A driver for an in-process plant (MuJoCo or kinematic), with injectable device faults.
 
-The plant is stepped by whoever owns time: the lockstep cell (virtual clock) or a
-:class:`stubs.plant.realtime.RealtimeStepper` (wall clock). The driver only commands and reads,
-exactly as a vendor driver would, so the kernel cannot tell it from a real device.
+The plant is stepped by whoever owns time: the lockstep cell (virtual clock) or a real-time
+stepper (wall clock). The driver only commands and reads, exactly as a vendor driver would, so
+the kernel cannot tell it from a real device. What it needs of a plant is ``plant.SimulatedPlant``.
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ from drivers.base import (
     NotConnected,
     StateSample,
 )
-from stubs.plant.base import Plant
+from drivers.sim.plant import SimulatedPlant
 
 
 @dataclass(slots=True)
@@ -41,7 +41,7 @@ class SimDriver:
                               CommandKind.STOP, CommandKind.IMPEDANCE})
 
     def __init__(
-        self, plant: Plant, name: str = "sim", lock: threading.Lock | None = None,
+        self, plant: SimulatedPlant, name: str = "sim", lock: threading.Lock | None = None,
         faults: SimFaults | None = None,
     ) -> None:
         self.name = name

@@ -17,8 +17,12 @@ import sys
 import threading
 from typing import Any
 
-from drivers.canopen402.units import GRIPPER_COUNTS_PER_M
-from stubs.cia402_drive.emulator import DriveEmulator, EmulatorConfig, encoders_for
+from stubs.cia402_drive.emulator import (
+    GRIPPER_COUNTS_PER_M,
+    DriveEmulator,
+    EmulatorConfig,
+    encoders_for,
+)
 from stubs.fault_control import FaultControlServer
 from stubs.plant.base import Plant
 from stubs.plant.world_port import world_handlers

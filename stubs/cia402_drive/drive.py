@@ -22,21 +22,22 @@ from canopen.objectdictionary import ODVariable
 from canopen.pdo import PdoMap
 from canopen.sdo import SdoAbortedError
 
-from drivers.canopen402.tables import (
+from stubs.cia402_drive.encoders import Encoder, LinearEncoder
+from stubs.cia402_drive.profile import (
+    ABORT_VALUE_RANGE,
+    EMCY_FOLLOWING_ERROR,
+    ERROR_REGISTER_GENERIC,
+    ERROR_REGISTER_PROFILE,
+    NO_FOLLOWING_LIMIT,
     SUPPORTED_MODE_BITS,
-    DriveState,
     Index,
     Mode,
+    PowerState,
     StatusBit,
 )
-from stubs.cia402_drive.encoders import Encoder, LinearEncoder
 from stubs.cia402_drive.state_machine import PowerStateMachine
 
 log = logging.getLogger(__name__)
-
-ABORT_VALUE_RANGE = 0x06090030
-FOLLOWING_ERROR_EMCY = 0x8611
-NO_LIMIT = 0xFFFFFFFF
 
 
 CACHED_PARAMETERS = {
@@ -72,7 +73,7 @@ class EmulatedDrive:
         self._pending_rpdos: dict[int, PdoMap] = {}
         self._limits = (0, 0)
         self.rated_torque = int(node.sdo[Index.RATED_TORQUE].raw)
-        self.following_window = float(NO_LIMIT) if following_error is None else (
+        self.following_window = float(NO_FOLLOWING_LIMIT) if following_error is None else (
             encoder.counts_per_unit * following_error)
         node.sdo[Index.FOLLOWING_ERROR_WINDOW].raw = round(self.following_window)
         self._live: dict[int, Callable[[], int]] = {
@@ -96,7 +97,7 @@ class EmulatedDrive:
         return self.node.id
 
     @property
-    def state(self) -> DriveState:
+    def state(self) -> PowerState:
         return self.machine.state
 
     @property
@@ -156,13 +157,13 @@ class EmulatedDrive:
 
     # -- faults --------------------------------------------------------------------------------
 
-    def fault(self, code: int, register: int = 0x01) -> None:
+    def fault(self, code: int, register: int = ERROR_REGISTER_GENERIC) -> None:
         """A drive fault: FAULT, error code and register latched, EMCY sent."""
         with self._lock:
             self.machine.fault()
             self._hold_q = None
             self.error_code = code
-            self.error_register = register | 0x01  # bit 0: generic error
+            self.error_register = register | ERROR_REGISTER_GENERIC  # set with any error
             self.node.emcy.send(code, self.error_register)
 
     def stop_heartbeat(self) -> None:
@@ -258,10 +259,10 @@ class EmulatedDrive:
             self.machine.after_standstill()
 
     def _check_following_error(self, position: int) -> None:
-        if not self.follows_target or self.following_window >= NO_LIMIT:
+        if not self.follows_target or self.following_window >= NO_FOLLOWING_LIMIT:
             return
         if abs(self._limited(self.target_counts) - position) > self.following_window:
-            self.fault(FOLLOWING_ERROR_EMCY, 0x20)  # error register bit 5: device profile
+            self.fault(EMCY_FOLLOWING_ERROR, ERROR_REGISTER_PROFILE)
 
 
 @dataclass(frozen=True, slots=True)

@@ -13,32 +13,39 @@ In-process on ``virtual``; across processes on ``udp_multicast`` (``__main__``).
 from __future__ import annotations
 
 import logging
+import os
+import socket
 import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import can
 import canopen
 
-from drivers.canopen402.link import load_object_dictionary, widen_receive_buffer
-from drivers.canopen402.tables import DEFAULT_EDS
-from drivers.canopen402.units import GRIPPER_COUNTS_PER_M
+from stubs.cia402_drive.dictionary import object_dictionary
 from stubs.cia402_drive.drive import EmulatedDrive
 from stubs.cia402_drive.encoders import Encoder, LinearEncoder
 from stubs.cia402_drive.gripper import GripperLink
+from stubs.cia402_drive.profile import (
+    EMCY_OVER_CURRENT,
+    ERROR_REGISTER_CURRENT,
+    NMT_COB_ID,
+    SYNC_COB_ID,
+)
 from stubs.plant.base import KinematicPlant, Plant
 
 log = logging.getLogger(__name__)
 
-SYNC_COB_ID = 0x80
-NMT_COB_ID = 0x00
 MAX_SYNC_GAP_PERIODS = 4
 """A SYNC after a longer pause advances the plant by at most this many cycle periods."""
 DEFAULT_CYCLE_US = 2000
-DEFAULT_EMCY_CODE = 0x2310
+GRIPPER_COUNTS_PER_M = 1_000_000.0
+"""The gripper drive's stroke sensor as built by default: one count per micrometre of opening
+(a drive made to match the driver's default; tests check that the two agree)."""
+UDP_RECEIVE_BUFFER = 4 * 1024 * 1024
+"""Requested SO_RCVBUF; Linux caps it at net.core.rmem_max."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -48,7 +55,6 @@ class EmulatorConfig:
     node_ids: tuple[int, ...]
     encoders: tuple[Encoder, ...]
     udp_port: int = 43113
-    eds_path: Path = DEFAULT_EDS
     following_error_rad: float = 0.25
     plant_timestep_ns: int = 1_000_000
     q0: tuple[float, ...] | None = None
@@ -140,8 +146,7 @@ class DriveEmulator:
             self.gripper = GripperLink(drive)
 
     def _create_node(self, network: canopen.Network, node_id: int) -> canopen.LocalNode:
-        return network.create_node(node_id,
-                                   load_object_dictionary(self.config.eds_path, node_id))
+        return network.create_node(node_id, object_dictionary(node_id))
 
     def stop(self) -> None:
         network, self._network = self._network, None
@@ -226,9 +231,9 @@ class DriveEmulator:
             raise KeyError(f"no drive with node id {node}")
         return self.drives[node]
 
-    def _fault_emcy(self, node: int | None = None, code: int = DEFAULT_EMCY_CODE,
-                    register: int = 0x02) -> None:
-        self.drive(node).fault(int(code), int(register))  # register bit 1: current
+    def _fault_emcy(self, node: int | None = None, code: int = EMCY_OVER_CURRENT,
+                    register: int = ERROR_REGISTER_CURRENT) -> None:
+        self.drive(node).fault(int(code), int(register))
 
     def _fault_heartbeat_stop(self, node: int | None = None) -> None:
         self.drive(node).stop_heartbeat()
@@ -255,3 +260,23 @@ def encoders_for(node_ids: Sequence[int], counts_per_rev: int,
     offsets = offsets or [0] * len(node_ids)
     return tuple(Encoder(counts_per_rev, d, o) for d, o in zip(directions, offsets, strict=True))
 
+
+
+def widen_receive_buffer(bus: can.BusABC, size: int = UDP_RECEIVE_BUFFER) -> None:
+    """Let a UDP-backed bus ride through a stall of this process without dropping frames.
+
+    On ``udp_multicast`` every process also receives its own frames back: six drives answering
+    a 500 Hz SYNC are some 10k datagrams/s, and the default receive buffer (~212 KB) overflows
+    after a pause of a few tens of milliseconds (a busy core, a GC pass), losing SDO requests
+    and RPDOs. Works on a duplicate of the bus's public ``fileno()``: same socket, no private
+    attributes. Buses without a file descriptor (``virtual``) are left as they are.
+    """
+    try:
+        fd = bus.fileno()
+    except NotImplementedError:
+        return
+    if fd < 0:
+        return
+    with socket.socket(fileno=os.dup(fd)) as sock:
+        if sock.type == socket.SOCK_DGRAM:
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, size)

@@ -7,47 +7,53 @@ every controlword it receives (SDO or RPDO), ``fault`` when a drive fault occurs
 
 from __future__ import annotations
 
-from drivers.canopen402.tables import STATE_BITS, Command, DriveState
+from stubs.cia402_drive.profile import (
+    STATE_STATUS,
+    ControlBit,
+    DeviceCommand,
+    PowerState,
+)
 
-S = DriveState
-TRANSITIONS: dict[tuple[DriveState, Command], DriveState] = {
-    (S.SWITCH_ON_DISABLED, Command.SHUTDOWN): S.READY_TO_SWITCH_ON,  # 2
-    (S.READY_TO_SWITCH_ON, Command.SWITCH_ON): S.SWITCHED_ON,  # 3
-    (S.READY_TO_SWITCH_ON, Command.ENABLE_OPERATION): S.OPERATION_ENABLED,  # 3 then 4
-    (S.READY_TO_SWITCH_ON, Command.DISABLE_VOLTAGE): S.SWITCH_ON_DISABLED,  # 7
-    (S.READY_TO_SWITCH_ON, Command.QUICK_STOP): S.SWITCH_ON_DISABLED,  # 7
-    (S.SWITCHED_ON, Command.ENABLE_OPERATION): S.OPERATION_ENABLED,  # 4
-    (S.SWITCHED_ON, Command.SHUTDOWN): S.READY_TO_SWITCH_ON,  # 6
-    (S.SWITCHED_ON, Command.DISABLE_VOLTAGE): S.SWITCH_ON_DISABLED,  # 10
-    (S.SWITCHED_ON, Command.QUICK_STOP): S.SWITCH_ON_DISABLED,  # 10
-    (S.OPERATION_ENABLED, Command.SWITCH_ON): S.SWITCHED_ON,  # 5 (disable operation)
-    (S.OPERATION_ENABLED, Command.SHUTDOWN): S.READY_TO_SWITCH_ON,  # 8
-    (S.OPERATION_ENABLED, Command.DISABLE_VOLTAGE): S.SWITCH_ON_DISABLED,  # 9
-    (S.OPERATION_ENABLED, Command.QUICK_STOP): S.QUICK_STOP_ACTIVE,  # 11
-    (S.QUICK_STOP_ACTIVE, Command.DISABLE_VOLTAGE): S.SWITCH_ON_DISABLED,  # 12
+S = PowerState
+TRANSITIONS: dict[tuple[PowerState, DeviceCommand], PowerState] = {
+    (S.SWITCH_ON_DISABLED, DeviceCommand.SHUTDOWN): S.READY_TO_SWITCH_ON,  # 2
+    (S.READY_TO_SWITCH_ON, DeviceCommand.SWITCH_ON): S.SWITCHED_ON,  # 3
+    (S.READY_TO_SWITCH_ON, DeviceCommand.ENABLE_OPERATION): S.OPERATION_ENABLED,  # 3 then 4
+    (S.READY_TO_SWITCH_ON, DeviceCommand.DISABLE_VOLTAGE): S.SWITCH_ON_DISABLED,  # 7
+    (S.READY_TO_SWITCH_ON, DeviceCommand.QUICK_STOP): S.SWITCH_ON_DISABLED,  # 7
+    (S.SWITCHED_ON, DeviceCommand.ENABLE_OPERATION): S.OPERATION_ENABLED,  # 4
+    (S.SWITCHED_ON, DeviceCommand.SHUTDOWN): S.READY_TO_SWITCH_ON,  # 6
+    (S.SWITCHED_ON, DeviceCommand.DISABLE_VOLTAGE): S.SWITCH_ON_DISABLED,  # 10
+    (S.SWITCHED_ON, DeviceCommand.QUICK_STOP): S.SWITCH_ON_DISABLED,  # 10
+    (S.OPERATION_ENABLED, DeviceCommand.SWITCH_ON): S.SWITCHED_ON,  # 5 (disable operation)
+    (S.OPERATION_ENABLED, DeviceCommand.SHUTDOWN): S.READY_TO_SWITCH_ON,  # 8
+    (S.OPERATION_ENABLED, DeviceCommand.DISABLE_VOLTAGE): S.SWITCH_ON_DISABLED,  # 9
+    (S.OPERATION_ENABLED, DeviceCommand.QUICK_STOP): S.QUICK_STOP_ACTIVE,  # 11
+    (S.QUICK_STOP_ACTIVE, DeviceCommand.DISABLE_VOLTAGE): S.SWITCH_ON_DISABLED,  # 12
 }
 RESUMABLE_QUICK_STOP = range(5, 9)
 """0x605A values after which the drive stays in QUICK STOP ACTIVE and may resume (16)."""
 
 
-def decode_command(controlword: int) -> Command | None:
-    """The device-control command in a controlword (bits 0-3; bit 7 is the fault reset)."""
-    if controlword & 0x80:
+def decode_command(controlword: int) -> DeviceCommand | None:
+    """The device-control command in a controlword (bits 0-3, CiA 402-2 table 31); None while
+    the fault-reset bit is set (a reset is its rising edge, handled on its own)."""
+    if controlword & ControlBit.FAULT_RESET:
         return None
-    if not controlword & 0x02:
-        return Command.DISABLE_VOLTAGE
-    if not controlword & 0x04:
-        return Command.QUICK_STOP
-    if not controlword & 0x01:
-        return Command.SHUTDOWN
-    if not controlword & 0x08:
-        return Command.SWITCH_ON
-    return Command.ENABLE_OPERATION
+    if not controlword & ControlBit.ENABLE_VOLTAGE:
+        return DeviceCommand.DISABLE_VOLTAGE
+    if not controlword & ControlBit.QUICK_STOP:  # active low
+        return DeviceCommand.QUICK_STOP
+    if not controlword & ControlBit.SWITCH_ON:
+        return DeviceCommand.SHUTDOWN
+    if not controlword & ControlBit.ENABLE_OPERATION:
+        return DeviceCommand.SWITCH_ON
+    return DeviceCommand.ENABLE_OPERATION
 
 
 class PowerStateMachine:
     def __init__(self) -> None:
-        self.state = DriveState.SWITCH_ON_DISABLED  # transitions 0 and 1 happen at boot
+        self.state = PowerState.SWITCH_ON_DISABLED  # transitions 0 and 1 happen at boot
         self.quick_stop_option = 2
         self.quick_stop_input_active = False
         """A quick stop the drive makes itself (its input) holds until the input is released."""
@@ -55,7 +61,8 @@ class PowerStateMachine:
 
     def on_controlword(self, controlword: int, fault_cleared: bool = True) -> bool:
         """Apply one controlword; True if it was a fault reset that left FAULT (15)."""
-        rising_reset = bool(controlword & 0x80) and not self._last_controlword & 0x80
+        reset = ControlBit.FAULT_RESET
+        rising_reset = bool(controlword & reset) and not self._last_controlword & reset
         self._last_controlword = controlword
         if self.state is S.FAULT:
             if rising_reset and fault_cleared:
@@ -65,7 +72,7 @@ class PowerStateMachine:
         command = decode_command(controlword)
         if command is None:
             return False
-        if (self.state, command) == (S.QUICK_STOP_ACTIVE, Command.ENABLE_OPERATION):
+        if (self.state, command) == (S.QUICK_STOP_ACTIVE, DeviceCommand.ENABLE_OPERATION):
             if self.quick_stop_option in RESUMABLE_QUICK_STOP and not self.quick_stop_input_active:
                 self.state = S.OPERATION_ENABLED  # 16
             return False
@@ -93,5 +100,5 @@ class PowerStateMachine:
         return self.state is S.OPERATION_ENABLED
 
     def statusword_bits(self) -> int:
-        return STATE_BITS[self.state]
+        return STATE_STATUS[self.state]
 

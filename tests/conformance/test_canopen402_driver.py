@@ -17,11 +17,12 @@ import pytest
 
 from assurance.reasons import ReasonCode
 from drivers.canopen402 import CiA402Driver
+from drivers.testing import DriverConformance, Harness
 from stubs.cia402_drive import DriveEmulator
-from stubs.cia402_drive import testbed as arm
+from stubs.cia402_drive.launch import unique_udp_bus
 from stubs.fault_control import inject
 from stubs.process import EmulatorProcess
-from tests.conformance.suite import DriverConformance, Harness
+from tests.drivers import cia402_testbed as arm
 
 FAULTED_NODE = 3
 EXPECTED = {
@@ -57,7 +58,7 @@ class TestCiA402OnVirtualBus(DriverConformance):
 
 @pytest.fixture(scope="module")
 def udp_drives() -> Iterator[tuple[str, int, tuple[str, int]]]:
-    group, port = arm.unique_udp_bus()
+    group, port = unique_udp_bus()
     with EmulatorProcess("stubs.cia402_drive", *arm.emulator_args(group, port)) as process:
         yield group, port, ("127.0.0.1", int(process.info["fault_port"]))
 

@@ -17,8 +17,8 @@ from assurance.reasons import ReasonCode
 from drivers.base import ControlConfig
 from drivers.dynamixel.driver import DynamixelDriver
 from drivers.dynamixel.settings import DynamixelSettings
+from drivers.testing import DriverConformance, Harness
 from stubs.dynamixel_bus.launch import WIDE_TIMING, BusEmulator
-from tests.conformance.suite import DriverConformance, Harness
 
 PERIOD_NS = 4_000_000  # 250 Hz: leaves the emulator's share of two cores to the emulator
 

@@ -1,25 +1,36 @@
-"""The conformance suite against the plant driver, in lockstep with a kinematic plant."""
+"""The conformance suite against the plant driver, in lockstep with a kinematic plant; and the
+suite's own entry points (``drivers.testing.check_driver``) against it and against drivers that
+break the contract."""
 
 from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
 
 import pytest
 
 from assurance.reasons import ReasonCode
-from drivers.base import ControlConfig
+from drivers.base import Applied, Command, ControlConfig, DeviceFault, Driver, StateSample
 from drivers.sim.driver import SimDriver, SimFaults
+from drivers.sim.plant import PlantReading, SimulatedPlant
+from drivers.testing import CHECKS, ConformanceError, DriverConformance, Harness, check_driver
 from stubs.plant.base import KinematicPlant
-from tests.conformance.suite import DriverConformance, Harness
+from stubs.plant.mujoco_plant import MujocoPlant
 
 PERIOD_NS = 2_000_000
+FAULTS = ("estop", "protective_stop", "disconnected")
 
 
-@pytest.fixture
-def harness() -> Harness:
+def sim_harness(driver_type: Callable[..., Driver] = SimDriver) -> Harness:
     plant = KinematicPlant(dof=6, timestep_ns=PERIOD_NS)
     faults = SimFaults()
 
     def inject(name: str) -> None:
         setattr(faults, name, True)
+
+    def clear() -> None:
+        for name in FAULTS:
+            setattr(faults, name, False)
 
     async def advance(seconds: float) -> None:
         plant.step(max(1, round(seconds * 1e9 / PERIOD_NS)))
@@ -28,7 +39,7 @@ def harness() -> Harness:
         dof=6, period_ns=PERIOD_NS, q_lower=(-6.28,) * 6, q_upper=(6.28,) * 6, v_max=(3.14,) * 6
     )
     return Harness(
-        make_driver=lambda: SimDriver(plant, faults=faults),
+        make_driver=lambda: driver_type(plant, faults=faults),
         control=control,
         inject=inject,
         expected_reason={
@@ -37,8 +48,58 @@ def harness() -> Harness:
             "disconnected": ReasonCode.LINK_LOST,
         },
         advance=advance,
+        clear=clear,
     )
 
 
+@pytest.fixture
+def harness() -> Harness:
+    return sim_harness()
+
+
 class TestSimDriverConformance(DriverConformance):
-    FAULTS = ("estop", "protective_stop", "disconnected")
+    FAULTS = FAULTS
+
+
+@pytest.mark.parametrize("make_plant", [KinematicPlant, MujocoPlant])
+def test_the_stand_in_plants_are_what_the_driver_needs(make_plant: type) -> None:
+    """The driver names what it needs of a plant; the plants provide it without importing it."""
+    plant = make_plant()
+    assert isinstance(plant, SimulatedPlant)
+    assert isinstance(plant.state(), PlantReading)
+
+
+async def test_check_driver_passes_a_conforming_driver() -> None:
+    cleared = []
+    harness = sim_harness()
+    counting = dataclasses.replace(harness, clear=lambda: (cleared.append(1), harness.clear()))
+    await check_driver(counting)
+    assert len(cleared) == len(CHECKS) + len(FAULTS) + 1  # before each check, and at the end
+
+
+class _StuckDriver(SimDriver):
+    """Accepts position writes and reports them applied, but never passes them on."""
+
+    async def write(self, command: Command) -> Applied:
+        applied = await super().write(command)
+        self.plant.hold()
+        return applied
+
+
+class _EstopAsProtectiveStop(SimDriver):
+    """Reports a pressed emergency stop as an ordinary controller fault."""
+
+    async def read(self) -> StateSample:
+        if self.faults.estop:
+            raise DeviceFault(self.name, "stopped", ReasonCode.CONTROLLER_FAULT)
+        return await super().read()
+
+
+@pytest.mark.parametrize(("driver_type", "message"), [
+    (_StuckDriver, r"^active write moves: joint 0 is 0\.05 from its target"),
+    (_EstopAsProtectiveStop, r"^fault 'estop': reason CONTROLLER_FAULT .* expected E_STOP$"),
+])
+async def test_check_driver_names_the_broken_rule(driver_type: Callable[..., Driver],
+                                                  message: str) -> None:
+    with pytest.raises(ConformanceError, match=message):
+        await check_driver(sim_harness(driver_type))

@@ -22,10 +22,10 @@ import pytest
 
 from assurance.reasons import ReasonCode
 from drivers.base import ControlConfig
+from drivers.testing import DriverConformance, Harness
 from drivers.ur_rtde.driver import URRTDEDriver
 from drivers.ur_rtde.settings import URSettings
 from stubs.ur_controller.launch import EmulatedController
-from tests.conformance.suite import DriverConformance, Harness
 
 PERIOD_NS = 2_000_000  # 500 Hz, the controller's own rate
 

@@ -26,11 +26,12 @@ from drivers.base import (
     DriverState,
 )
 from drivers.canopen402 import CiA402Driver, CiA402Settings
-from drivers.canopen402.tables import DriveState, Mode
+from drivers.canopen402.tables import DriveState
 from drivers.lifecycle import ManagedDriver
 from stubs.cia402_drive import DriveEmulator
-from stubs.cia402_drive import testbed as arm
+from stubs.cia402_drive.profile import Mode, PowerState
 from stubs.plant.base import Plant
+from tests.drivers import cia402_testbed as arm
 
 PERIOD_S = arm.TEST_PERIOD_NS * 1e-9
 
@@ -43,7 +44,7 @@ class Arm:
     def settings(self, **overrides: Any) -> CiA402Settings:
         return arm.driver_settings("virtual", self.channel, **overrides)
 
-    def states(self) -> set[DriveState]:
+    def states(self) -> set[PowerState]:
         return {drive.state for drive in self.emulator.drives.values()}
 
     def plant_q(self) -> np.ndarray:
@@ -104,14 +105,14 @@ async def _until_error(driver: ManagedDriver, timeout_s: float = 3.0) -> DriverE
 async def test_402_walk_to_operation_enabled_and_back(bus: Arm) -> None:
     driver = await _configured(bus.settings())
     try:
-        assert bus.states() == {DriveState.SWITCH_ON_DISABLED}
+        assert bus.states() == {PowerState.SWITCH_ON_DISABLED}
         assert {d.mode for d in bus.emulator.drives.values()} == {
             Mode.CYCLIC_SYNCHRONOUS_POSITION}
         await driver.activate()
-        assert bus.states() == {DriveState.OPERATION_ENABLED}
+        assert bus.states() == {PowerState.OPERATION_ENABLED}
         assert set(driver.driver.drive_states().values()) == {DriveState.OPERATION_ENABLED}
         await driver.deactivate()
-        assert bus.states() == {DriveState.SWITCH_ON_DISABLED}
+        assert bus.states() == {PowerState.SWITCH_ON_DISABLED}
         assert set(driver.driver.drive_states().values()) == {DriveState.SWITCH_ON_DISABLED}
     finally:
         await driver.aclose()
@@ -143,7 +144,7 @@ async def test_quick_stop_holds_and_refuses_motion_until_hold(bus: Arm) -> None:
         stopped = await driver.write(Command(kind=CommandKind.STOP))
         assert stopped.accepted
         await asyncio.sleep(0.15)
-        assert bus.states() == {DriveState.QUICK_STOP_ACTIVE}
+        assert bus.states() == {PowerState.QUICK_STOP_ACTIVE}
         before = np.array((await driver.read()).q)
         await asyncio.sleep(0.2)
         assert np.abs(np.array((await driver.read()).q) - before).max() < 1e-3
@@ -151,7 +152,7 @@ async def test_quick_stop_holds_and_refuses_motion_until_hold(bus: Arm) -> None:
         refused = await driver.write(Command(kind=CommandKind.POSITION, q=tuple(goal)))
         assert (refused.accepted, refused.reason) == (False, ReasonCode.CONTROLLER_REJECT)
         assert (await driver.hold()).accepted
-        assert bus.states() == {DriveState.OPERATION_ENABLED}
+        assert bus.states() == {PowerState.OPERATION_ENABLED}
         await _stream(driver, before + 0.05, 0.3)
         assert abs(bus.plant_q()[0] - (before[0] + 0.05)) < 0.01
     finally:
@@ -171,7 +172,7 @@ async def test_emcy_is_a_controller_fault_reset_only_on_a_reconnect_that_allows_
         assert driver.state is DriverState.FAULT
     finally:
         await driver.aclose()
-    assert bus.emulator.drive(4).state is DriveState.FAULT  # nothing reset it on the way out
+    assert bus.emulator.drive(4).state is PowerState.FAULT  # nothing reset it on the way out
     with pytest.raises(DriverInitError, match=r"node 4 is in FAULT.*0x4310"):
         await _configured(bus.settings())
     resetting = await _active(bus.settings(reset_faults_on_connect=True))
@@ -194,7 +195,7 @@ async def test_drive_in_fault_at_start_is_refused_with_its_error(bus: Arm) -> No
     assert "reset_faults_on_connect" in message
     driver = await _configured(bus.settings(reset_faults_on_connect=True))
     try:
-        assert bus.emulator.drive(2).state is DriveState.SWITCH_ON_DISABLED
+        assert bus.emulator.drive(2).state is PowerState.SWITCH_ON_DISABLED
     finally:
         await driver.aclose()
 
@@ -267,7 +268,7 @@ async def test_closing_an_enabled_driver_quick_stops_the_drives(bus: Arm) -> Non
     driver = await _active(bus.settings())
     await driver.driver.aclose()  # the hook itself, as after a crash of the lifecycle
     await asyncio.sleep(0.05)
-    assert bus.states() == {DriveState.QUICK_STOP_ACTIVE}
+    assert bus.states() == {PowerState.QUICK_STOP_ACTIVE}
     assert {d.node.nmt.state for d in bus.emulator.drives.values()} == {"PRE-OPERATIONAL"}
     await driver.aclose()
 

@@ -32,10 +32,12 @@ from drivers.canopen402.gripper import MAX_OPENING_M
 from drivers.canopen402.tables import DriveState
 from drivers.lifecycle import ManagedDriver
 from stubs.cia402_drive import DriveEmulator
-from stubs.cia402_drive import testbed as arm
+from stubs.cia402_drive.launch import unique_udp_bus
+from stubs.cia402_drive.profile import PowerState
 from stubs.fault_control import inject
 from stubs.plant.base import KinematicPlant, Plant
 from stubs.process import EmulatorProcess
+from tests.drivers import cia402_testbed as arm
 
 PERIOD_S = arm.TEST_PERIOD_NS * 1e-9
 GRIPPER = arm.GRIPPER_NODE
@@ -76,7 +78,7 @@ class Cell:
         with self.emulator.lock:
             return np.array(self.emulator.plant.state().q)
 
-    def gripper_drive_state(self) -> DriveState:
+    def gripper_drive_state(self) -> PowerState:
         return self.emulator.drive(GRIPPER).state
 
 
@@ -135,11 +137,11 @@ async def _until_error(driver: ManagedDriver, timeout_s: float = 3.0) -> DriverE
 async def test_bring_up_enables_the_gripper_drive_with_the_joints(cell: Cell) -> None:
     driver = await _active(cell.settings())
     try:
-        assert {d.state for d in cell.emulator.drives.values()} == {DriveState.OPERATION_ENABLED}
+        assert {d.state for d in cell.emulator.drives.values()} == {PowerState.OPERATION_ENABLED}
         assert driver.driver.drive_states()[GRIPPER] is DriveState.OPERATION_ENABLED
         assert cell.emulator.drive(GRIPPER).node.sdo[0x6065].raw == 0xFFFFFFFF  # no FE fault
         await driver.deactivate()
-        assert cell.gripper_drive_state() is DriveState.SWITCH_ON_DISABLED
+        assert cell.gripper_drive_state() is PowerState.SWITCH_ON_DISABLED
     finally:
         await driver.aclose()
     assert cell.emulator.drive(GRIPPER).node.nmt.state == "PRE-OPERATIONAL"
@@ -231,8 +233,8 @@ async def test_stop_quick_stops_the_joints_but_leaves_the_gripper_as_it_is(cell:
         assert stopped.accepted
         await asyncio.sleep(0.15)
         joints = {cell.emulator.drive(n).state for n in arm.NODE_IDS}
-        assert joints == {DriveState.QUICK_STOP_ACTIVE}
-        assert cell.gripper_drive_state() is DriveState.OPERATION_ENABLED
+        assert joints == {PowerState.QUICK_STOP_ACTIVE}
+        assert cell.gripper_drive_state() is PowerState.OPERATION_ENABLED
         assert cell.opening() == pytest.approx(0.02, abs=COUNT_M)
         assert (await driver.read()).gripper == pytest.approx(0.02, abs=COUNT_M)
         assert (await driver.hold()).accepted  # resume: every drive enabled again
@@ -263,7 +265,7 @@ async def test_emcy_from_the_gripper_is_a_controller_fault_naming_it(cell: Cell)
         assert driver.state is DriverState.FAULT
     finally:
         await driver.aclose()
-    assert cell.gripper_drive_state() is DriveState.FAULT
+    assert cell.gripper_drive_state() is PowerState.FAULT
 
 
 async def test_gripper_heartbeat_loss_is_link_lost_naming_it(cell: Cell) -> None:
@@ -310,7 +312,7 @@ async def test_the_gripper_drives_the_mujoco_plant_gripper() -> None:
 
 @pytest.fixture(scope="module")
 def udp_cell() -> Iterator[tuple[str, int, tuple[str, int]]]:
-    group, port = arm.unique_udp_bus()
+    group, port = unique_udp_bus()
     args = arm.emulator_args(group, port, gripper_node=GRIPPER)
     with EmulatorProcess("stubs.cia402_drive", *args) as process:
         assert process.info["gripper_node"] == GRIPPER

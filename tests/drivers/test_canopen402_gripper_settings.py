@@ -13,7 +13,7 @@ from drivers.canopen402.units import GRIPPER_COUNTS_PER_M, GripperScale
 from drivers.settings import SettingsError
 from stubs.cia402_drive.__main__ import parse_args
 from stubs.cia402_drive.encoders import LinearEncoder
-from stubs.cia402_drive.testbed import emulator_config
+from tests.drivers.cia402_testbed import emulator_config
 
 TABLE = {"interface": "socketcan", "channel": "can0", "node_ids": [1, 2],
          "counts_per_rev": [4096, 4096]}

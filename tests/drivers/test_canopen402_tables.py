@@ -1,4 +1,5 @@
-"""The 402 tables and the emulated state machine, checked against canopen's own tables."""
+"""The 402 tables of the driver and of the emulated drive (written separately), each checked
+against canopen's own tables, and the emulated state machine against canopen's transitions."""
 
 from __future__ import annotations
 
@@ -12,10 +13,10 @@ from drivers.canopen402.link import _parse_eds, _variables, load_object_dictiona
 from drivers.canopen402.settings import CiA402Settings
 from drivers.canopen402.tables import DEFAULT_EDS, STATE_BITS, Command, DriveState, decode_state
 from drivers.settings import SettingsError
+from stubs.cia402_drive.profile import STATE_STATUS, PowerState, StatusBit
 from stubs.cia402_drive.state_machine import PowerStateMachine
 
-ENTERABLE = {s.value for s in DriveState} - {"UNKNOWN", "NOT READY TO SWITCH ON",
-                                              "FAULT REACTION ACTIVE"}
+ENTERABLE = {s.value for s in PowerState} - {"NOT READY TO SWITCH ON", "FAULT REACTION ACTIVE"}
 
 
 @pytest.mark.parametrize("state", list(STATE_BITS))
@@ -27,6 +28,17 @@ def test_statusword_of_each_state_decodes_to_it_here_and_in_canopen(state: Drive
     assert canopen_names[0] == state.value
 
 
+@pytest.mark.parametrize("state", list(STATE_STATUS))
+def test_the_emulated_drive_reports_each_state_as_canopen_and_the_driver_read_it(
+    state: PowerState,
+) -> None:
+    word = STATE_STATUS[state] | StatusBit.REMOTE | StatusBit.FOLLOWS_COMMAND
+    canopen_names = [name for name, (mask, bits) in State402.SW_MASK.items()
+                     if word & mask == bits]
+    assert canopen_names[0] == state.value
+    assert decode_state(word).value == state.value
+
+
 @pytest.mark.parametrize(("transition", "controlword"), [
     (pair, cw) for pair, cw in State402.TRANSITIONTABLE.items()
     if pair[0] in ENTERABLE and pair[1] in ENTERABLE
@@ -36,7 +48,7 @@ def test_canopen_transition_commands_move_the_emulated_drive(
 ) -> None:
     machine = PowerStateMachine()
     machine.quick_stop_option = 6  # transition 16 (QUICK STOP ACTIVE → OPERATION ENABLED)
-    machine.state = DriveState(transition[0])
+    machine.state = PowerState(transition[0])
     machine.on_controlword(controlword)
     assert machine.state.value == transition[1]
 
@@ -45,32 +57,32 @@ def test_fault_reset_needs_a_rising_edge_and_a_cleared_cause() -> None:
     machine = PowerStateMachine()
     machine.fault()
     assert not machine.on_controlword(Command.FAULT_RESET, fault_cleared=False)
-    assert machine.state is DriveState.FAULT
+    assert machine.state is PowerState.FAULT
     assert not machine.on_controlword(Command.FAULT_RESET)  # still high: no new edge
     machine.on_controlword(Command.DISABLE_VOLTAGE)
     assert machine.on_controlword(Command.FAULT_RESET)
-    assert machine.state is DriveState.SWITCH_ON_DISABLED
+    assert machine.state is PowerState.SWITCH_ON_DISABLED
 
 
 def test_a_drive_side_quick_stop_holds_until_its_input_is_released() -> None:
     machine = PowerStateMachine()
     machine.quick_stop_option = 6
-    machine.state = DriveState.OPERATION_ENABLED
+    machine.state = PowerState.OPERATION_ENABLED
     machine.quick_stop_input()
     machine.on_controlword(Command.ENABLE_OPERATION)
-    assert machine.state is DriveState.QUICK_STOP_ACTIVE
+    assert machine.state is PowerState.QUICK_STOP_ACTIVE
     machine.quick_stop_input(active=False)
     machine.on_controlword(Command.ENABLE_OPERATION)
-    assert machine.state is DriveState.OPERATION_ENABLED
+    assert machine.state is PowerState.OPERATION_ENABLED
 
 
-@pytest.mark.parametrize(("option", "after"), [(2, DriveState.SWITCH_ON_DISABLED),
-                                                (6, DriveState.QUICK_STOP_ACTIVE)])
+@pytest.mark.parametrize(("option", "after"), [(2, PowerState.SWITCH_ON_DISABLED),
+                                                (6, PowerState.QUICK_STOP_ACTIVE)])
 def test_quick_stop_option_decides_what_follows_standstill(option: int,
-                                                           after: DriveState) -> None:
+                                                           after: PowerState) -> None:
     machine = PowerStateMachine()
     machine.quick_stop_option = option
-    machine.state = DriveState.OPERATION_ENABLED
+    machine.state = PowerState.OPERATION_ENABLED
     machine.on_controlword(Command.QUICK_STOP)
     machine.after_standstill()
     assert machine.state is after
