@@ -78,7 +78,7 @@ def _flags(table: Mapping[str, Any], flags: Mapping[str, str]) -> tuple[str, ...
 
 
 def _canopen(manifest: Manifest, plant: str) -> Launch:
-    from stubs.cia402_drive.testbed import unique_udp_bus
+    from stubs.cia402_drive.launch import unique_udp_bus
 
     group, port = unique_udp_bus()
     table = manifest.driver_settings
