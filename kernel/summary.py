@@ -11,9 +11,18 @@ from collections import Counter, defaultdict
 from dataclasses import dataclass, field
 from typing import Any
 
-from kernel.core.lines import ChunkLine, Line, RequestLine, TickLine, TransitionLine
+from kernel.core.lines import (
+    ADMITTED,
+    ChunkLine,
+    Decision,
+    Line,
+    Machine,
+    RequestLine,
+    TickLine,
+    TransitionLine,
+)
 
-ADMITTED = frozenset({"accepted", "trimmed", "replaced", "blended"})
+__all__ = ["ADMITTED", "CycleResult", "RunSummary", "percentiles"]
 
 
 def percentiles(values: list[float]) -> dict[str, float | None]:
@@ -54,7 +63,7 @@ class RunSummary:
     _phase: str = "IDLE"
     _pending: list[dict[str, Any]] = field(default_factory=list)
 
-    def observe_all(self, lines: list[Line]) -> None:
+    def observe_all(self, lines: tuple[Line, ...] | list[Line]) -> None:
         for line in lines:
             self.observe(line)
 
@@ -87,14 +96,14 @@ class RunSummary:
                 self.projection.append(line.projection_distance)
             if line.observation_age_ms is not None:
                 self.round_trip_ms.append(float(line.observation_age_ms))
-        elif line.decision == "rejected":
+        elif line.decision == Decision.REJECTED:
             for reason in line.reasons:
                 self.refusals[self._phase][reason] += 1
 
     def _transition(self, line: TransitionLine) -> None:
-        if line.machine == "task" and line.accepted:
+        if line.machine == Machine.TASK and line.accepted:
             self._phase = line.to
-        if line.machine != "fallback" or not line.accepted:
+        if line.machine != Machine.FALLBACK or not line.accepted:
             return
         record = {"t": float(line.t), "from": line.from_, "to": line.to,
                   "trigger": line.trigger}

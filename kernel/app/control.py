@@ -28,6 +28,7 @@ from kernel.app.device import World
 from kernel.core.effects import Hold, Motion, Setpoint, Stop
 from kernel.core.events import (
     ControllerEvent,
+    ControllerStatus,
     Event,
     GripperEvent,
     InsertEvent,
@@ -140,12 +141,13 @@ class ControlLoop:
         if applied.accepted:
             if self._refusing:
                 self._refusing = False
-                self.gateway.feed(ControllerEvent(t=t, status="ok"))
+                self.gateway.feed(ControllerEvent(t=t, status=ControllerStatus.OK))
             return
         self.counters.refused_writes += 1
         if self.driver.state is DriverState.ACTIVE and not self._refusing:
             self._refusing = True
-            self.gateway.feed(ControllerEvent(t=t, status="reject", reason=applied.reason))
+            self.gateway.feed(ControllerEvent(t=t, status=ControllerStatus.REJECT,
+                                              reason=applied.reason))
 
     def _sense(self, sample: StateSample, t: int) -> Sensed:
         fresh = sample.seq != self._last_seq and bool(sample.q) and not sample.faults
@@ -171,7 +173,7 @@ class ControlLoop:
         self._fault_reported = True
         reason = self.driver.fault
         self.counters.driver_faults.append(f"{reason}: {self.driver.fault_detail}")
-        status = "estop" if reason is ReasonCode.E_STOP else "fault"
+        status = ControllerStatus.ESTOP if reason is ReasonCode.E_STOP else ControllerStatus.FAULT
         self.gateway.feed(ControllerEvent(t=t, status=status, reason=reason))
 
     def _maybe_next_cycle(self, t: int) -> None:

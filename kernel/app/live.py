@@ -22,7 +22,7 @@ from kernel.app import standins
 from kernel.app.compose import source_of
 from kernel.app.report import CycleProgress
 from kernel.app.session import RunContext, bring_up, finish, open_run, report_progress
-from kernel.core.events import LinkEvent
+from kernel.core.events import LinkEvent, LinkStatus
 from kernel.manifest import Manifest
 from kernel.shell.client import RobotClient
 from kernel.shell.link_types import ClientConfig
@@ -174,7 +174,7 @@ def task_failed(context: RunContext, failures: list[str], name: str,
     log.error("task failed", task=name, error=type(error).__name__)
     if name == "policy-link":
         gateway = context.cell.gateway
-        gateway.feed(LinkEvent(t=gateway.now_ns(), status="down"))
+        gateway.feed(LinkEvent(t=gateway.now_ns(), status=LinkStatus.DOWN))
 
 
 @contextlib.contextmanager

@@ -50,7 +50,7 @@ from kernel.core.jobs import (
     array_of,
     rows_of,
 )
-from kernel.core.lines import ChunkLine
+from kernel.core.lines import ChunkLine, Decision
 from kernel.core.state import CoreState
 
 _PROJECTION_DIGITS = 9
@@ -110,8 +110,9 @@ def _ignore_duplicate(state: CoreState, chunk: Chunk) -> None:
     elif chunk.queue_epoch > state.epoch:
         reasons.append(R.FUTURE_QUEUE_EPOCH)
     state.emit(ChunkLine(
-        t=state.t_ms, chunk_id=chunk.chunk_id, decision="ignored", reasons=canonical(reasons),
-        queue_epoch=state.epoch, queue_depth=state.queue.pending_rows(state.t),
+        t=state.t_ms, chunk_id=chunk.chunk_id, decision=Decision.IGNORED,
+        reasons=canonical(reasons), queue_epoch=state.epoch,
+        queue_depth=state.queue.pending_rows(state.t),
     ))
 
 
@@ -321,14 +322,14 @@ def _commit(
     ))
 
 
-def _decision_name(plan: MergePlan) -> str:
+def _decision_name(plan: MergePlan) -> Decision:
     if plan.trimmed:
-        return "trimmed"
+        return Decision.TRIMMED
     if plan.blended:
-        return "blended"
+        return Decision.BLENDED
     if plan.displaced and plan.merge is not ReplacementPolicy.APPEND:
-        return "replaced"
-    return "accepted"
+        return Decision.REPLACED
+    return Decision.ACCEPTED
 
 
 def _decide(
@@ -336,7 +337,7 @@ def _decide(
 ) -> None:
     """Log a refusal and raise the fallback trigger it implies, if any."""
     state.emit(ChunkLine(
-        t=state.t_ms, chunk_id=chunk_id, decision="rejected", reasons=reasons,
+        t=state.t_ms, chunk_id=chunk_id, decision=Decision.REJECTED, reasons=reasons,
         queue_epoch=state.epoch, queue_depth=state.queue.pending_rows(state.t), **extras,
     ))
     trigger = refusal_trigger(reasons)

@@ -17,19 +17,28 @@ from assurance.reasons import ReasonCode as R
 from kernel.core.events import (
     ClockSyncEvent,
     ControllerEvent,
+    ControllerStatus,
     ForceEvent,
     GripperEvent,
     HandshakeEvent,
     InsertEvent,
     LinkEvent,
+    LinkStatus,
     MoveEvent,
     ObservationEvent,
     OodEvent,
+    OperatorAction,
     OperatorEvent,
     PhaseEvent,
     StateEvent,
 )
-from kernel.core.lines import HandshakeLine, MotionLine
+from kernel.core.lines import (
+    HandshakeLine,
+    Machine,
+    MotionDecision,
+    MotionLine,
+    MotionRequest,
+)
 from kernel.core.motion import request_move
 from kernel.core.state import CoreState
 from skills.contact import NoKinematics
@@ -98,7 +107,7 @@ def on_phase(state: CoreState, event: PhaseEvent) -> None:
 
 
 def on_link(state: CoreState, event: LinkEvent) -> None:
-    if event.status == "up":
+    if event.status == LinkStatus.UP:
         state.link_up = True
         return
     if not state.link_up and state.session is None:
@@ -162,7 +171,7 @@ def on_operator(state: CoreState, event: OperatorEvent) -> None:
 
 def _takeover(state: CoreState) -> None:
     if not state.fire(R.HUMAN_TAKEOVER):
-        state.refuse("fallback", Mode.HUMAN_RECOVERY, R.NO_AUTHORITY,
+        state.refuse(Machine.FALLBACK, Mode.HUMAN_RECOVERY, R.NO_AUTHORITY,
                      f"takeover not possible in {state.fallback.mode}")
 
 
@@ -177,7 +186,7 @@ def _reset(state: CoreState) -> None:
 def _accept_recovery(state: CoreState) -> None:
     outcome = state.fallback.recover(state.session is not None, state.controller_ok)
     if isinstance(outcome, str):
-        state.refuse("fallback", Mode.RUNNING, R.GUARD_FAILED, outcome)
+        state.refuse(Machine.FALLBACK, Mode.RUNNING, R.GUARD_FAILED, outcome)
         return
     state.apply(outcome, QueueAction.NEW_EPOCH)
     # Every way back to work passes VALIDATE, whichever fallback state it recovers from; an
@@ -197,18 +206,18 @@ def _abort(state: CoreState) -> None:
 
 def _outcome(state: CoreState, outcome: object, target: Mode) -> None:
     if isinstance(outcome, str):
-        state.refuse("fallback", target, R.GUARD_FAILED, outcome)
+        state.refuse(Machine.FALLBACK, target, R.GUARD_FAILED, outcome)
         return
     state.apply(outcome)  # type: ignore[arg-type]
 
 
 _OPERATOR = {
-    "takeover": _takeover,
-    "release": _release,
-    "reset": _reset,
-    "accept_recovery": _accept_recovery,
-    "estop": _estop,
-    "abort": _abort,
+    OperatorAction.TAKEOVER: _takeover,
+    OperatorAction.RELEASE: _release,
+    OperatorAction.RESET: _reset,
+    OperatorAction.ACCEPT_RECOVERY: _accept_recovery,
+    OperatorAction.ESTOP: _estop,
+    OperatorAction.ABORT: _abort,
 }
 
 
@@ -216,16 +225,16 @@ def on_controller(state: CoreState, event: ControllerEvent) -> None:
     """The device's answer: a refused command or a fault stops the arm (CONTROLLER_STOP), an
     e-stop is E_STOP; ``ok`` is the precondition for recovering from either."""
     status = event.status
-    if status == "ok":
+    if status == ControllerStatus.OK:
         state.controller_ok = True
         state.estop_asserted = False
         return
-    if status == "estop":
+    if status == ControllerStatus.ESTOP:
         state.estop_asserted = True
         state.fire(R.E_STOP)
         return
     state.controller_ok = False
-    trigger = R.CONTROLLER_REJECT if status == "reject" else R.CONTROLLER_FAULT
+    trigger = R.CONTROLLER_REJECT if status == ControllerStatus.REJECT else R.CONTROLLER_FAULT
     state.fire(trigger)
 
 
@@ -243,19 +252,22 @@ def on_move(state: CoreState, event: MoveEvent) -> None:
     elif not (np.isfinite(target).all() and limits.contains(target)):
         problem = "target is not finite or not inside the position limits"
     if problem:
-        state.emit(MotionLine(t=state.t_ms, request="move", decision="refused",
-                              move_id=event.move_id, detail=problem))
+        state.emit(MotionLine(t=state.t_ms, request=MotionRequest.MOVE,
+                              decision=MotionDecision.REFUSED, move_id=event.move_id,
+                              detail=problem))
         return
     request_move(state.motion, event.move_id, target)
 
 
 def on_gripper(state: CoreState, event: GripperEvent) -> None:
     if not np.isfinite(event.opening) or event.opening < 0:
-        state.emit(MotionLine(t=state.t_ms, request="gripper", decision="refused",
+        state.emit(MotionLine(t=state.t_ms, request=MotionRequest.GRIPPER,
+                              decision=MotionDecision.REFUSED,
                               detail=f"opening {event.opening!r} is not a distance"))
         return
     state.motion.gripper = event.opening
-    state.emit(MotionLine(t=state.t_ms, request="gripper", decision="set",
+    state.emit(MotionLine(t=state.t_ms, request=MotionRequest.GRIPPER,
+                          decision=MotionDecision.SET,
                           opening=event.opening))
 
 
@@ -273,5 +285,6 @@ def on_insert(state: CoreState, event: InsertEvent) -> None:
                                        rotation.reshape(3, 3))
         except (NoKinematics, ValueError) as error:
             detail = str(error)
-    state.emit(MotionLine(t=state.t_ms, request="insert",
-                          decision="refused" if detail else "started", detail=detail or None))
+    decision = MotionDecision.REFUSED if detail else MotionDecision.STARTED
+    state.emit(MotionLine(t=state.t_ms, request=MotionRequest.INSERT, decision=decision,
+                          detail=detail or None))

@@ -8,12 +8,36 @@ same decoded chunk is what the journal records.
 
 from __future__ import annotations
 
+from enum import StrEnum
 from typing import Any
 
 import msgspec
 
 from assurance.envelope import Chunk, MalformedChunk
 from kernel.core.jobs import JobResult
+
+
+class LinkStatus(StrEnum):
+    DOWN = "down"
+    UP = "up"
+
+
+class ControllerStatus(StrEnum):
+    OK = "ok"
+    REJECT = "reject"
+    """The device refused a command."""
+    FAULT = "fault"
+    PROTECTIVE_STOP = "protective_stop"
+    ESTOP = "estop"
+
+
+class OperatorAction(StrEnum):
+    TAKEOVER = "takeover"
+    RELEASE = "release"
+    ACCEPT_RECOVERY = "accept_recovery"
+    ESTOP = "estop"
+    RESET = "reset"
+    ABORT = "abort"
 
 
 class StateEvent(msgspec.Struct, frozen=True, kw_only=True):
@@ -47,7 +71,7 @@ class OodEvent(msgspec.Struct, frozen=True, kw_only=True):
 
 class LinkEvent(msgspec.Struct, frozen=True, kw_only=True):
     t: int
-    status: str
+    status: LinkStatus
 
 
 class HandshakeEvent(msgspec.Struct, frozen=True, kw_only=True):
@@ -57,7 +81,7 @@ class HandshakeEvent(msgspec.Struct, frozen=True, kw_only=True):
 
 class OperatorEvent(msgspec.Struct, frozen=True, kw_only=True):
     t: int
-    action: str
+    action: OperatorAction
 
 
 class ControllerEvent(msgspec.Struct, frozen=True, kw_only=True):
@@ -65,7 +89,7 @@ class ControllerEvent(msgspec.Struct, frozen=True, kw_only=True):
     driver's reason code, if it gave one), ``estop`` or ``protective_stop``."""
 
     t: int
-    status: str
+    status: ControllerStatus
     reason: str | None = None
 
 
@@ -139,7 +163,7 @@ Event = (
     | MoveEvent | GripperEvent | InsertEvent | ComputedEvent
 )
 
-OPERATOR_ACTIONS = ("takeover", "release", "accept_recovery", "estop", "reset", "abort")
-CONTROLLER_STATUSES = ("ok", "reject", "fault", "protective_stop", "estop")
-LINK_STATUSES = ("down", "up")
+OPERATOR_ACTIONS = tuple(OperatorAction)
+CONTROLLER_STATUSES = tuple(ControllerStatus)
+LINK_STATUSES = tuple(LinkStatus)
 REQUESTERS = ("fsm", "policy", "operator")

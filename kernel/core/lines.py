@@ -6,9 +6,55 @@ unset, so the same decisions always encode to the same bytes. ``t`` is in millis
 
 from __future__ import annotations
 
+from enum import StrEnum
+
 import msgspec
 
+from assurance.fallback import Command, Mode, Owner
+from skills.phases import TaskPhase
+
 Ms = int | float
+
+
+class Decision(StrEnum):
+    """What admission decided on a chunk (docs/contract.md §4)."""
+
+    ACCEPTED = "accepted"
+    TRIMMED = "trimmed"
+    REPLACED = "replaced"
+    BLENDED = "blended"
+    REJECTED = "rejected"
+    IGNORED = "ignored"
+
+
+ADMITTED = frozenset({Decision.ACCEPTED, Decision.TRIMMED, Decision.REPLACED,
+                      Decision.BLENDED})
+
+
+class Machine(StrEnum):
+    TASK = "task"
+    FALLBACK = "fallback"
+
+
+class QueueAction(StrEnum):
+    """A queue line's action (the queue's own changes, not a fallback's queue rule)."""
+
+    PURGE = "purge"
+    NEW_EPOCH = "new_epoch"
+    EXPIRE = "expire"
+
+
+class MotionRequest(StrEnum):
+    MOVE = "move"
+    GRIPPER = "gripper"
+    INSERT = "insert"
+
+
+class MotionDecision(StrEnum):
+    PLANNED = "planned"
+    SET = "set"
+    STARTED = "started"
+    REFUSED = "refused"
 
 
 class SentRef(msgspec.Struct, frozen=True):
@@ -20,7 +66,7 @@ class ChunkLine(msgspec.Struct, frozen=True, kw_only=True, tag_field="kind", tag
                 omit_defaults=True):
     t: Ms
     chunk_id: str | None
-    decision: str
+    decision: Decision
     reasons: tuple[str, ...]
     queue_epoch: int
     queue_depth: int
@@ -36,11 +82,11 @@ class ChunkLine(msgspec.Struct, frozen=True, kw_only=True, tag_field="kind", tag
 class TickLine(msgspec.Struct, frozen=True, kw_only=True, tag_field="kind", tag="tick",
                omit_defaults=True):
     t: Ms
-    command: str
-    owner: str
+    command: Command
+    owner: Owner
     sent: SentRef | None
-    phase: str
-    mode: str
+    phase: TaskPhase
+    mode: Mode
     reason: str | None = None
     age_ms: Ms | None = None
 
@@ -48,7 +94,7 @@ class TickLine(msgspec.Struct, frozen=True, kw_only=True, tag_field="kind", tag=
 class TransitionLine(msgspec.Struct, frozen=True, kw_only=True, tag_field="kind",
                      tag="transition", omit_defaults=True):
     t: Ms
-    machine: str
+    machine: Machine
     from_: str = msgspec.field(name="from")
     to: str
     trigger: str
@@ -76,7 +122,7 @@ class HandshakeLine(msgspec.Struct, frozen=True, kw_only=True, tag_field="kind",
 class QueueLine(msgspec.Struct, frozen=True, kw_only=True, tag_field="kind", tag="queue",
                 omit_defaults=True):
     t: Ms
-    action: str
+    action: QueueAction
     queue_epoch: int
     dropped: int = 0
     chunk_id: str | None = None
@@ -99,8 +145,8 @@ class MotionLine(msgspec.Struct, frozen=True, kw_only=True, tag_field="kind", ta
     owner's descent (``insert``)."""
 
     t: Ms
-    request: str
-    decision: str
+    request: MotionRequest
+    decision: MotionDecision
     move_id: int | None = None
     duration_ms: Ms | None = None
     opening: float | None = None

@@ -31,7 +31,7 @@ from assurance.fallback import Command as Cmd
 from assurance.fallback import Owner
 from kernel.core.config import CoreConfig
 from kernel.core.effects import Hold, Motion, Retreat, Setpoint, Stop
-from kernel.core.lines import Line, MotionLine
+from kernel.core.lines import Line, MotionDecision, MotionLine, MotionRequest
 from skills.contact import ContactOwner, ContactState
 from skills.interpolator import InterpolatorConfig, SetpointInterpolator
 from skills.planner import MoveStatus, PlannedMove, PlanningError, joint_move
@@ -187,12 +187,14 @@ def _plan_from_rest(m: MotionState, ctx: MotionContext) -> bool:
         m.move = joint_move(setpoint.position, target, m.planner_limits)
     except (PlanningError, ValueError) as error:
         m.move, m.move_status, m.move_detail = None, MoveStatus.REFUSED, str(error)
-        ctx.emit(MotionLine(t=ns_to_ms(ctx.t), request="move", decision="refused",
+        ctx.emit(MotionLine(t=ns_to_ms(ctx.t), request=MotionRequest.MOVE,
+                            decision=MotionDecision.REFUSED,
                             move_id=m.move_id, detail=str(error)))
         return True
     if m.move_status is MoveStatus.WAITING:
         duration = round(m.move.trajectory.duration * 1000.0, 3)
-        ctx.emit(MotionLine(t=ns_to_ms(ctx.t), request="move", decision="planned",
+        ctx.emit(MotionLine(t=ns_to_ms(ctx.t), request=MotionRequest.MOVE,
+                            decision=MotionDecision.PLANNED,
                             move_id=m.move_id, duration_ms=duration))
     m.move_status = MoveStatus.PLAYING
     return True

@@ -22,7 +22,8 @@ from assurance.reasons import ReasonCode
 from assurance.watermarks import Watermarks
 from kernel.core.config import CoreConfig
 from kernel.core.effects import Effect, EndSession
-from kernel.core.lines import Line, QueueLine, TransitionLine
+from kernel.core.lines import Line, Machine, QueueLine, TransitionLine
+from kernel.core.lines import QueueAction as QueueAct
 from kernel.core.motion import MotionState, initial_motion
 from skills.phases import PhaseCard, TaskPhase
 from skills.task_fsm import TaskDecision, TaskMachine
@@ -124,7 +125,7 @@ class CoreState:
 
     def purge(self, reason: ReasonCode | None = None) -> None:
         dropped = self.queue.purge()
-        self.emit(QueueLine(t=self.t_ms, action="purge", queue_epoch=self.epoch,
+        self.emit(QueueLine(t=self.t_ms, action=QueueAct.PURGE, queue_epoch=self.epoch,
                             dropped=dropped, reason=reason))
         self._queue_reset()
 
@@ -133,7 +134,7 @@ class CoreState:
         dropped = self.queue.purge()
         self.epoch += 1
         self.last_sequence = None
-        self.emit(QueueLine(t=self.t_ms, action="new_epoch", queue_epoch=self.epoch,
+        self.emit(QueueLine(t=self.t_ms, action=QueueAct.NEW_EPOCH, queue_epoch=self.epoch,
                             dropped=dropped, reason=reason))
         self._queue_reset()
 
@@ -156,7 +157,7 @@ class CoreState:
         card = MODES[transition.target]
         action = queue if queue is not None else card.queue
         self.emit(TransitionLine(
-            t=self.t_ms, machine="fallback", from_=transition.source, to=transition.target,
+            t=self.t_ms, machine=Machine.FALLBACK, from_=transition.source, to=transition.target,
             trigger=transition.trigger, owner=card.owner, command=card.command,
             queue=action, recovery=card.recovery,
         ))
@@ -177,20 +178,21 @@ class CoreState:
         if decision is None:
             return
         if decision.accepted:
-            self.emit(TransitionLine(t=self.t_ms, machine="task", from_=decision.source,
+            self.emit(TransitionLine(t=self.t_ms, machine=Machine.TASK, from_=decision.source,
                                      to=decision.target, trigger=decision.trigger))
             if decision.target is TaskPhase.CONTACT:
                 self.motion.contact.reset()  # a new contact starts from a compliant hold
             return
         self.emit(TransitionLine(
-            t=self.t_ms, machine="task", from_=decision.source, to=decision.source,
+            t=self.t_ms, machine=Machine.TASK, from_=decision.source, to=decision.source,
             trigger=decision.trigger, accepted=False, requested=requested or decision.target,
             reasons=decision.reasons, missing_evidence=decision.missing_evidence,
         ))
 
-    def refuse(self, machine: str, requested: str, trigger: ReasonCode, detail: str) -> None:
+    def refuse(self, machine: Machine, requested: str, trigger: ReasonCode,
+               detail: str) -> None:
         """Log a request the machine did not grant (the state stays where it is)."""
-        current = self.fallback.mode if machine == "fallback" else self.task.phase
+        current = self.fallback.mode if machine is Machine.FALLBACK else self.task.phase
         self.emit(TransitionLine(
             t=self.t_ms, machine=machine, from_=current, to=current, trigger=trigger,
             accepted=False, requested=requested, reasons=(trigger,), detail=detail,

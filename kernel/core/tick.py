@@ -19,7 +19,7 @@ from assurance.queue import Row
 from assurance.reasons import ReasonCode as R
 from kernel.core.authority import validate
 from kernel.core.effects import RequestObservation
-from kernel.core.lines import QueueLine, RequestLine, SentRef, TickLine
+from kernel.core.lines import QueueAction, QueueLine, RequestLine, SentRef, TickLine
 from kernel.core.motion import MotionContext, motion_for
 from kernel.core.state import CoreState
 from skills.phases import Executor, TaskPhase
@@ -86,7 +86,7 @@ def _row_in_force(state: CoreState) -> Row | None:
             return row
         dropped = state.queue.unrun_rows(state.t)
         chunk_id, _ = state.queue.drop_head()
-        state.emit(QueueLine(t=state.t_ms, action="expire", queue_epoch=state.epoch,
+        state.emit(QueueLine(t=state.t_ms, action=QueueAction.EXPIRE, queue_epoch=state.epoch,
                              dropped=dropped, chunk_id=chunk_id, reason=R.EXPIRED))
 
 

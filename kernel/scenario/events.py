@@ -30,15 +30,18 @@ from kernel.core.events import (
     ClockSyncEvent,
     ComputedEvent,
     ControllerEvent,
+    ControllerStatus,
     Event,
     ForceEvent,
     GripperEvent,
     HandshakeEvent,
     InsertEvent,
     LinkEvent,
+    LinkStatus,
     MoveEvent,
     ObservationEvent,
     OodEvent,
+    OperatorAction,
     OperatorEvent,
     PhaseEvent,
     StateEvent,
@@ -160,7 +163,7 @@ def _ood(t: int, item: Mapping[str, Any], where: Where, _: JointLimits) -> Event
 
 
 def _link(t: int, item: Mapping[str, Any], where: Where, _: JointLimits) -> Event:
-    return LinkEvent(t=t, status=choice(item, "status", where, LINK_STATUSES))
+    return LinkEvent(t=t, status=LinkStatus(choice(item, "status", where, LINK_STATUSES)))
 
 
 def _handshake(t: int, item: Mapping[str, Any], where: Where, _: JointLimits) -> Event:
@@ -168,14 +171,16 @@ def _handshake(t: int, item: Mapping[str, Any], where: Where, _: JointLimits) ->
 
 
 def _operator(t: int, item: Mapping[str, Any], where: Where, _: JointLimits) -> Event:
-    return OperatorEvent(t=t, action=choice(item, "action", where, OPERATOR_ACTIONS))
+    return OperatorEvent(t=t, action=OperatorAction(choice(item, "action", where,
+                                                           OPERATOR_ACTIONS)))
 
 
 def _controller(t: int, item: Mapping[str, Any], where: Where, _: JointLimits) -> Event:
     reason = None
     if item.get("reason") is not None:
         reason = choice(item, "reason", where, tuple(ReasonCode))
-    return ControllerEvent(t=t, status=choice(item, "status", where, CONTROLLER_STATUSES),
+    status = ControllerStatus(choice(item, "status", where, CONTROLLER_STATUSES))
+    return ControllerEvent(t=t, status=status,
                            reason=reason)
 
 

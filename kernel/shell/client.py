@@ -357,7 +357,7 @@ class RobotClient:
     def _report_link(self, up: bool) -> None:
         if up or not self._down_reported:  # one "down" per loss, not one per failed attempt
             self._down_reported = not up
-            status = "up" if up else "down"
+            status = ev.LinkStatus.UP if up else ev.LinkStatus.DOWN
             self._gateway.feed(ev.LinkEvent(t=self._gateway.now_ns(), status=status))
 
 

@@ -12,7 +12,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from assurance.fallback import Mode
-from kernel.core.events import ControllerEvent, Event, OperatorEvent
+from kernel.core.events import (
+    ControllerEvent,
+    ControllerStatus,
+    Event,
+    OperatorAction,
+    OperatorEvent,
+)
 
 RECOVERABLE = frozenset({Mode.SAFE_HOLD, Mode.REPLAN_OR_RETREAT, Mode.CONTACT_FALLBACK,
                          Mode.HUMAN_RECOVERY, Mode.CONTROLLER_STOP})
@@ -40,6 +46,6 @@ class SimulatedOperator:
         if mode is Mode.CONTROLLER_STOP:
             if not driver_ok:
                 return []
-            events.append(ControllerEvent(t=t_ns, status="ok"))
-        events.append(OperatorEvent(t=t_ns, action="accept_recovery"))
+            events.append(ControllerEvent(t=t_ns, status=ControllerStatus.OK))
+        events.append(OperatorEvent(t=t_ns, action=OperatorAction.ACCEPT_RECOVERY))
         return events
