@@ -1,8 +1,10 @@
-"""The whole cell through every vendor driver and its emulator (issue 4).
+"""The whole cell through every vendor driver and its emulator.
 
 Each driver runs the assembly cycle through its real library over its real transport; then
-each emulated device fault, injected while the policy is streaming, must reach the core as the
-right trigger, put the fallback machine in the right state, and leave the arm held.
+each emulated device fault (the UR refusing servoJ in protective stop, a Dynamixel servo's
+hardware error status, a CiA 402 drive in FAULT after an EMCY or silent), injected while the
+policy is streaming, must reach the core as a journaled controller event with the driver's
+reason, put the fallback machine in the right state, and leave the arm held.
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+from assurance.reasons import ReasonCode
 from kernel.app.live import run_live
 from kernel.app.session import RunContext
 from kernel.shell.loop import run
@@ -91,3 +94,10 @@ def test_a_device_fault_reaches_the_right_fallback_and_the_arm_holds(
     assert after and all(line["command"] == "stop" and line["mode"] == mode for line in after)
     assert len(hook.q_after) == 2
     assert np.abs(hook.q_after[1] - hook.q_after[0]).max() < 2e-3  # held still
+    journal = [json.loads(line) for line in (run_dir(tmp_path) / "journal.jsonl").open()]
+    reported = [e for e in journal if e.get("kind") == "controller"]
+    assert reported and reported[0]["status"] in ("fault", "estop", "reject")
+    assert reported[0].get("reason") in ReasonCode.__members__  # the driver's own, journaled
+    stops = [e for e in journal if e.get("kind") == "command" and e["t"] >= transitions[0]["t"]]
+    assert stops and all(e["effect"]["effect"] == "stop" for e in stops)
+    assert replays_identically(run_dir(tmp_path))
