@@ -6,8 +6,8 @@ turns that into one motion effect with the right law, on the core's own control 
 - the setpoint interpolator (ruckig) for policy actions and holds, so every stream, every hold
   and every hand-over stays inside the velocity, acceleration and jerk limits;
 - the planner's classical move (requested by a ``move`` event) while the planner owns the tick;
-- the contact owner's impedance law (an ``insert`` event starts its descent) in contact, its
-  targets followed through the same interpolator;
+- the contact owner's impedance law (an ``insert`` event starts its descent) in contact: its
+  compliance targets exactly as the law computes them, from where the arm is measured;
 - the device's own stop, or its own hold when a human has the arm.
 
 Hand-overs never jump. The interpolator restarts from the last commanded state (clipped into
@@ -215,9 +215,12 @@ def _contact(m: MotionState, ctx: MotionContext, command: Cmd, target: np.ndarra
         contact.hold_at(ctx.measured)
     offer = np.asarray(target)[ctx.arm] if bounded and target is not None else None
     law = contact.step(ctx.t, ctx.config.control_period_ns * 1e-9, m.force, offer)
-    # The law's own target moves slowly, but where contact begins (the measured pose) or a
-    # retreat starts it may jump: it reaches the arm through the interpolator, like any other.
-    q = _interpolated(m, ctx, law.q)
+    # The law's targets go out as they are: a straight line in task space is a curve in joint
+    # space, and an interpolator following it would cut the corner by a millimetre, more than
+    # a hole's clearance. They are compliance targets, and continuous: the law starts (and a
+    # force-aware retreat starts) where the arm is measured, which is where it already is.
+    _restart(m, law.q)
+    q = tuple(law.q.tolist())
     compliant = ctx.config.motion.impedance
     stiffness = tuple(law.stiffness.tolist()) if compliant else ()
     damping = tuple(law.damping.tolist()) if compliant else ()

@@ -235,6 +235,9 @@ class CoreMachine(RuleBasedStateMachine):
         arm = limits.arm_mask
         q = np.asarray(motion.q)
         assert np.all(q >= limits.lower[arm] - EPS) and np.all(q <= limits.upper[arm] + EPS)
+        if motion.stiffness:  # a compliance target: the contact law's, from the measured pose
+            self.commanded = []
+            return
         self.commanded = [*self.commanded[-2:], q]
         if len(self.commanded) >= 2:
             step = np.abs(self.commanded[-1] - self.commanded[-2])
