@@ -45,6 +45,10 @@ class CellSettings:
     cycle_timeout_s: float = 30.0
     insertion_tolerance_m: float = 0.015
     """The evaluator's bar: peg depth below the fixture's top face that counts as inserted."""
+    ground_truth: bool = True
+    """In simulation, VERIFY also asks the simulator how deep the part truly is, and passes only
+    if that agrees with the measured evidence. False: the measured evidence alone decides, as
+    on a real cell (which has no ground truth whatever this says)."""
     simulated_operator: bool = True
     """Accept recovery automatically once the arm rests under a fallback owner. Simulation
     only: a manifest that drives a real device must set it false (a human recovers)."""

@@ -21,7 +21,7 @@ import numpy as np
 
 from assurance.fallback import Mode
 from skills.contact import ContactState
-from skills.evaluator import Evaluator, Verdict
+from skills.evaluator import Evaluator, InsertionEvidence, Verdict
 from skills.layout import CellLayout
 from skills.phases import TaskPhase
 from skills.planner import MoveStatus, Planner
@@ -131,10 +131,12 @@ class Outcome:
 class AssemblyRunner:
     def __init__(
         self, layout: CellLayout, planner: Planner, evaluator: Evaluator,
-        depth_probe: Callable[[], float], timing: CycleTiming | None = None,
+        ground_truth: Callable[[], float] | None = None, timing: CycleTiming | None = None,
     ) -> None:
+        """``ground_truth``: a simulator's true insertion depth, an extra check for VERIFY
+        (None on a real cell: the measured evidence alone decides)."""
         self.layout, self.planner = layout, planner
-        self.evaluator, self.depth_probe = evaluator, depth_probe
+        self.evaluator, self.ground_truth = evaluator, ground_truth
         self.timing = timing or CycleTiming()
         self.step = Step.DONE
         self.outcome: Outcome | None = None
@@ -145,6 +147,8 @@ class AssemblyRunner:
         self._since_ns = 0
         self._last_request_ns = -(10**18)
         self._failure = ""
+        self._peak_force_n = 0.0
+        self._depth_m = 0.0
 
     # -- driven by the cell ----------------------------------------------------------------
 
@@ -152,6 +156,7 @@ class AssemblyRunner:
         self._enter(Step.START, t_ns)
         self.outcome, self._failure = None, ""
         self._move_target = None
+        self._peak_force_n, self._depth_m = 0.0, 0.0
         self._requests.append(GripperRequest(self.layout.gripper_open))
 
     @property
@@ -227,6 +232,7 @@ class AssemblyRunner:
         return None
 
     def _insert(self, s: Sensed, phase: TaskPhase, mode: Mode) -> PhaseRequest | None:
+        self._peak_force_n = max(self._peak_force_n, s.force_norm)
         if phase is P.VERIFY:
             self._enter(Step.VERIFY, s.t_ns)
             return None
@@ -246,7 +252,8 @@ class AssemblyRunner:
             self._requests.append(GripperRequest(self.layout.gripper_open))
             return None
         if self.outcome is None:
-            verdict: Verdict = self.evaluator.verdict(self.depth_probe())
+            truth = self.ground_truth() if self.ground_truth is not None else None
+            verdict: Verdict = self.evaluator.verdict(self.insertion_evidence(s), truth)
             self.outcome = Outcome(verdict.verified, verdict.depth_m, verdict.reason)
         return self._request(P.RETREAT, s, mode)
 
@@ -263,12 +270,19 @@ class AssemblyRunner:
         if phase is P.IDLE:
             self._move_target = None
             if self.outcome is None:
-                self.outcome = Outcome(False, self.depth_probe(), self._failure or "no verdict")
+                self.outcome = Outcome(False, self._depth_m, self._failure or "no verdict")
             self._enter(Step.DONE, s.t_ns)
             return None
         return self._request(P.IDLE, s, mode)
 
     # -- evidence ----------------------------------------------------------------------------
+
+    def insertion_evidence(self, s: Sensed) -> InsertionEvidence:
+        """Where the measured tool is against the hole, and the force felt on the way in."""
+        tcp = self.planner.kin.forward(s.q).position
+        lateral = float(np.linalg.norm(tcp[:2] - self.layout.hole_top[:2]))
+        self._depth_m = self.layout.insertion_depth_of(float(tcp[2]))
+        return InsertionEvidence(self._depth_m, lateral, self._peak_force_n)
 
     def contact_evidence(self, s: Sensed) -> dict[str, bool]:
         """What the PRE_CONTACT → CONTACT guard needs, measured, never assumed."""
@@ -327,7 +341,7 @@ class AssemblyRunner:
     def _fail(self, reason: str, s: Sensed, mode: Mode) -> PhaseRequest | None:
         """Give the cycle up: retreat, release the peg, go home, report why."""
         self._failure = reason
-        self.outcome = Outcome(False, self.depth_probe(), reason)
+        self.outcome = Outcome(False, self._depth_m, reason)
         self._enter(Step.VERIFY, s.t_ns)
         return self._request(P.RETREAT, s, mode)
 

@@ -97,7 +97,9 @@ def build_cell(manifest: Manifest, config: CoreConfig, world: World, clock: Cloc
     core = Core(config)
     gateway = CoreGateway(core, clock, recorder)
     limits = core.state.motion.planner_limits
-    runner = assembly_runner(manifest, kinematics, limits, world.insertion_depth)
+    truth = world.insertion_depth if world.has_ground_truth and manifest.cell.ground_truth \
+        else None
+    runner = assembly_runner(manifest, kinematics, limits, truth)
     operator = None
     if manifest.cell.simulated_operator:
         operator = standins.load(standins.OPERATORS, "simulated")()

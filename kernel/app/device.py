@@ -19,6 +19,9 @@ from kernel.manifest import Manifest, ManifestError
 
 
 class World(Protocol):
+    has_ground_truth: bool
+    """A simulator that knows the true state of the parts (an extra check for VERIFY)."""
+
     def driver(self) -> Driver: ...
 
     def advance(self) -> None:
@@ -26,7 +29,7 @@ class World(Protocol):
         ...
 
     def insertion_depth(self) -> float:
-        """Ground truth for the independent evaluator, metres (NaN: nobody can see it)."""
+        """The simulator's true insertion depth, metres (NaN where nobody can see it)."""
         ...
 
     def feed_part(self) -> None:
@@ -55,6 +58,8 @@ def driver_from_manifest(manifest: Manifest, table: Mapping[str, Any]) -> Driver
 class DeviceWorld:
     """A real device: the driver only. Nothing here can see ground truth or feed parts."""
 
+    has_ground_truth = False
+
     def __init__(self, manifest: Manifest) -> None:
         self._driver = driver_from_manifest(manifest, manifest.driver_settings)
 
@@ -65,7 +70,7 @@ class DeviceWorld:
         """The device moves in real time on its own."""
 
     def insertion_depth(self) -> float:
-        return math.nan  # no independent evaluator on this cell: VERIFY cannot pass
+        return math.nan  # only the measured evidence can tell on a real cell
 
     def feed_part(self) -> None:
         """Parts are presented by the real cell."""

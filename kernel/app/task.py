@@ -47,6 +47,10 @@ class TaskSettings:
     """TCP height above a target for approach, lift and staging moves."""
     pre_insert_gap: float = 0.005
     """Gap between the part's bottom and the fixture top at the pre-insert pose."""
+    lateral_tolerance_m: float = 0.002
+    """VERIFY: the measured tool must end this close to the hole's axis."""
+    max_insertion_force_n: float = 25.0
+    """VERIFY: the wrist force measured during the insertion must stay below this."""
 
     def layout(self) -> CellLayout:
         return CellLayout(
@@ -78,10 +82,12 @@ def task_settings(manifest: Manifest) -> TaskSettings:
 
 
 def assembly_runner(manifest: Manifest, kinematics: ArmKinematics, limits: MotionLimits,
-                    depth_probe: Any) -> AssemblyRunner:
+                    ground_truth: Any) -> AssemblyRunner:
     """The cycle's runner for this cell (the planner here only solves tool poses: the core
-    plans and plays the moves)."""
-    layout = task_settings(manifest).layout()
+    plans and plays the moves); ``ground_truth`` is a simulator's extra check, or None."""
+    settings = task_settings(manifest)
+    layout = settings.layout()
     planner = Planner(kinematics, limits, layout.tool_down)
-    return AssemblyRunner(layout, planner, Evaluator(manifest.cell.insertion_tolerance_m),
-                          depth_probe)
+    evaluator = Evaluator(manifest.cell.insertion_tolerance_m, settings.lateral_tolerance_m,
+                          settings.max_insertion_force_n)
+    return AssemblyRunner(layout, planner, evaluator, ground_truth)

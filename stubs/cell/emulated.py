@@ -111,6 +111,8 @@ class EmulatorWorld:
     """A vendor driver's emulator process with the MuJoCo plant behind it (the
     ``warden.worlds`` entry point of ``ur_rtde``, ``dynamixel`` and ``canopen402``)."""
 
+    has_ground_truth = True
+
     def __init__(self, manifest: Manifest) -> None:
         launcher = LAUNCHERS.get(manifest.driver_name)
         if launcher is None:

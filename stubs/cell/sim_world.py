@@ -27,6 +27,8 @@ def sim_world(manifest: Manifest) -> SimWorld:
 class SimWorld:
     """The MuJoCo cell in-process, driven through :class:`drivers.sim.driver.SimDriver`."""
 
+    has_ground_truth = True
+
     def __init__(self, period_ns: int, plant: MujocoPlant | None = None) -> None:
         self.plant = plant or MujocoPlant()
         if period_ns % self.plant.timestep_ns:

@@ -9,6 +9,7 @@ reason, put the fallback machine in the right state, and leave the arm held.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 from typing import Any
@@ -29,9 +30,15 @@ DRIVER_MANIFESTS = ["sim-ur5e-rtde.toml", "sim-dynamixel.toml", "sim-canopen.tom
 
 @pytest.mark.parametrize("name", DRIVER_MANIFESTS)
 def test_a_full_cycle_runs_through_the_driver(tmp_path: Path, name: str) -> None:
-    summary = run(run_live(manifest(name, cycles=1), tmp_path))
+    """As a real cell would: VERIFY judges on measured evidence alone (the simulator's ground
+    truth switched off)."""
+    cell = manifest(name, cycles=1)
+    cell = dataclasses.replace(cell, cell=dataclasses.replace(cell.cell, ground_truth=False))
+    summary = run(run_live(cell, tmp_path))
     assert summary["cycles"]["attempted"] == 1
     assert summary["cycles"]["verified"] == 1  # the driver's gripper grasped the peg
+    reason = summary["cycles"]["detail"][0]["reason"]
+    assert reason.startswith("inserted: measured") and "ground truth" not in reason
     assert summary["driver"]["faults"] == "none"
     assert summary["link"]["chunks_admitted"] > 5
     assert replays_identically(run_dir(tmp_path))
