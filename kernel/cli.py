@@ -21,6 +21,7 @@ import msgspec
 
 from drivers.base import DriverError
 from kernel import signing
+from kernel.cli_operator import add_commands as add_operator_commands
 from kernel.cli_run import add_commands
 from kernel.core.lines import encode
 from kernel.replay import Replay, as_dict, check_expectations
@@ -63,6 +64,7 @@ def _parser() -> argparse.ArgumentParser:
                      help="verify the scenario's 'expect'/'forbid' matchers (exit 1 if broken)")
     rep.set_defaults(handler=_replay)
     add_commands(commands)
+    add_operator_commands(commands)
     signing.add_commands(commands)
     return parser
 

@@ -82,6 +82,17 @@ class PolicySettings:
 
 
 @dataclass(frozen=True, slots=True)
+class OperatorSettings:
+    """``[operator]``: the socket a human commands the running arm through."""
+
+    socket: str = ""
+    """Its path; empty: ``$RUNTIME_DIRECTORY/operator.sock`` under systemd, else
+    ``/run/warden/operator.sock``."""
+    group: str = ""
+    """Who may command: members of this group (and root); empty: warden's own group."""
+
+
+@dataclass(frozen=True, slots=True)
 class JournalSettings:
     enabled: bool = True
     directory: str = "runs"
@@ -102,10 +113,11 @@ class Manifest:
     journal: JournalSettings = field(default_factory=JournalSettings)
     task: dict[str, Any] = field(default_factory=dict)
     """``[task]`` as written: the assembly task's layout (:mod:`kernel.app.task` checks it)."""
+    operator: OperatorSettings = field(default_factory=OperatorSettings)
 
 
 _TOP_KEYS = frozenset({"name", "description", "cell", "driver", "emulator", "policy",
-                       "journal", "task", *SCENARIO_SECTIONS})
+                       "journal", "task", "operator", *SCENARIO_SECTIONS})
 
 
 def load_manifest(path: str | Path) -> Manifest:
@@ -138,6 +150,7 @@ def load_manifest(path: str | Path) -> Manifest:
         policy=_settings(PolicySettings, doc, "policy", where),
         journal=_settings(JournalSettings, doc, "journal", where),
         task=dict(_table(doc, "task", where)),
+        operator=_settings(OperatorSettings, doc, "operator", where),
     )
 
 

@@ -42,6 +42,9 @@ class Cell:
     driver: ManagedDriver
     controller: ControlLoop
     context: CellContext
+    real_device: bool
+    """A device, not a simulated world: only a human recovers it (through the operator
+    socket)."""
 
 
 def world_for(manifest: Manifest) -> World:
@@ -107,7 +110,8 @@ def build_cell(manifest: Manifest, config: CoreConfig, world: World, clock: Cloc
     controller = ControlLoop(gateway, driver, world, runner, operator, manifest.cell.cycles)
     planner = Planner(kinematics, limits, runner.layout.tool_down)
     context = CellContext(manifest, runner.layout, planner, kinematics, gateway)
-    return Cell(manifest, core, gateway, world, driver, controller, context)
+    return Cell(manifest, core, gateway, world, driver, controller, context,
+                isinstance(world, DeviceWorld))
 
 
 def source_of(manifest: Manifest) -> str:

@@ -20,12 +20,14 @@ import structlog
 
 from kernel.app import standins
 from kernel.app.compose import source_of
+from kernel.app.operator import operator_server
 from kernel.app.report import CycleProgress
 from kernel.app.session import RunContext, bring_up, finish, open_run, report_progress
 from kernel.core.events import LinkEvent, LinkStatus
 from kernel.manifest import Manifest
 from kernel.shell.client import RobotClient
 from kernel.shell.link_types import ClientConfig
+from kernel.shell.operator import OperatorServer
 from kernel.shell.realtime import restore, try_realtime
 from kernel.shell.supervisor import RestartPolicy, Supervisor
 from kernel.shell.systemd import ServiceNotifier
@@ -45,6 +47,12 @@ async def run_live(manifest: Manifest, journal_dir: Path | None,
                    progress: CycleProgress | None = None,
                    hook: TickHook | None = None) -> dict[str, Any]:
     context = open_run(manifest, MonotonicClock(), journal_dir, progress)
+    try:
+        operator = operator_server(context.cell)
+    except BaseException:
+        context.cell.world.close()
+        context.files.close()
+        raise
     server: Any = None
     worker = JobWorker(context.cell.gateway, context.sections, source_of(manifest))
     realtime = try_realtime()
@@ -65,7 +73,7 @@ async def run_live(manifest: Manifest, journal_dir: Path | None,
                 url = server.start()
             if not loop.stop_requested:
                 client = RobotClient(ClientConfig(url=url), context.cell.gateway)
-                await _supervise(context, client, worker, loop, failures)
+                await _supervise(context, client, worker, operator, loop, failures)
     finally:
         service.stopping("holding the arm and closing the device")
         await context.cell.driver.aclose()
@@ -84,6 +92,7 @@ async def run_live(manifest: Manifest, journal_dir: Path | None,
         "task_failures": failures, "loop": {"realtime": realtime.summary()},
         "link": {k: v for k, v in client.counters.snapshot().items() if v} if client else {},
         "jobs": {"done": worker.done, "failed": worker.failed},
+        "operator": _operator_summary(operator),
         "service": {"notify": service.enabled, "sent": service.stats.sent,
                     "failed": service.stats.failed},
     })
@@ -130,7 +139,7 @@ class _Loop:
 
 
 async def _supervise(context: RunContext, client: RobotClient, worker: JobWorker,
-                     loop: _Loop, failures: list[str]) -> None:
+                     operator: OperatorServer | None, loop: _Loop, failures: list[str]) -> None:
     def failed(name: str, error: BaseException) -> None:
         task_failed(context, failures, name, error)
 
@@ -157,12 +166,22 @@ async def _supervise(context: RunContext, client: RobotClient, worker: JobWorker
     async with Supervisor(on_failure=failed) as supervisor:
         await supervisor.start("recorder", context.recorder.run, critical=True)
         await supervisor.start("jobs", worker.run, critical=True)
+        if operator is not None:  # a real device's only way back from a fallback: critical
+            await supervisor.start("operator", operator.run, critical=context.cell.real_device)
         await supervisor.start("policy-link", link, critical=False,
                                restart=RestartPolicy(max_restarts=10))
         await supervisor.start("control", control, critical=True)
         await done.wait()
         client.stop()
         await supervisor.shutdown()
+
+
+def _operator_summary(operator: OperatorServer | None) -> dict[str, Any]:
+    if operator is None:
+        return {"socket": "-"}
+    stats = operator.stats
+    return {"socket": str(operator.path), "granted": stats.granted, "refused": stats.refused,
+            "takeover_latency_ms": stats.takeover_latency_ms}
 
 
 def task_failed(context: RunContext, failures: list[str], name: str,

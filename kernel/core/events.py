@@ -80,8 +80,11 @@ class HandshakeEvent(msgspec.Struct, frozen=True, kw_only=True):
 
 
 class OperatorEvent(msgspec.Struct, frozen=True, kw_only=True):
+    """A human's command (``uid``: who gave it, read from the operator socket's peer)."""
+
     t: int
     action: OperatorAction
+    uid: int | None = None
 
 
 class ControllerEvent(msgspec.Struct, frozen=True, kw_only=True):

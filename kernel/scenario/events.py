@@ -171,8 +171,9 @@ def _handshake(t: int, item: Mapping[str, Any], where: Where, _: JointLimits) ->
 
 
 def _operator(t: int, item: Mapping[str, Any], where: Where, _: JointLimits) -> Event:
+    uid = integer(item, "uid", where, minimum=0) if item.get("uid") is not None else None
     return OperatorEvent(t=t, action=OperatorAction(choice(item, "action", where,
-                                                           OPERATOR_ACTIONS)))
+                                                           OPERATOR_ACTIONS)), uid=uid)
 
 
 def _controller(t: int, item: Mapping[str, Any], where: Where, _: JointLimits) -> Event:
