@@ -1,4 +1,4 @@
-"""Time arithmetic of the chunk contract (CONTRACT.md §2, seed §3.1).
+"""Time arithmetic of the chunk contract (docs/contract.md §2, seed §3.1).
 
 All times are integer nanoseconds on the client's monotonic clock unless a name says otherwise.
 Scenario files and journals carry milliseconds; the conversion happens at their edge only.
@@ -48,7 +48,7 @@ def conservative_age(t_exec: int, t_obs: int, uncertainty: int) -> int:
 def is_expired(
     t_exec: int, t_obs: int, max_age: int, uncertainty: int, t_deadline: int, t_ready: int
 ) -> bool:
-    """CONTRACT.md §2: too old (with uncertainty) for its phase, or late for its deadline."""
+    """docs/contract.md §2: too old (with uncertainty) for its phase, or late for its deadline."""
     too_old = conservative_age(t_exec, t_obs, uncertainty) > max_age
     return too_old or slack(t_deadline, t_ready) < 0
 

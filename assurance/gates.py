@@ -1,4 +1,4 @@
-"""Admission gates (CONTRACT.md §3–§4): content, identity, context, time, state divergence.
+"""Admission gates (docs/contract.md §3–§4): content, identity, context, time, state divergence.
 
 Every gate is a pure function of the chunk and an :class:`AdmissionContext` snapshot and returns
 the reason codes that apply; the caller evaluates all of them and lists every reason, so a
@@ -116,7 +116,7 @@ class Timing(msgspec.Struct, frozen=True):
 
 
 def time_verdict(chunk: Chunk, ctx: AdmissionContext, t_obs: int | None) -> Timing:
-    """Clock provenance, observation staleness, expiry and trimming (CONTRACT.md §2)."""
+    """Clock provenance, observation staleness, expiry and trimming (docs/contract.md §2)."""
     try:
         offset, uncertainty = ctx.clock.translator(chunk.clock_domain)
     except ClockInvalid:

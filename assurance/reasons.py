@@ -1,4 +1,4 @@
-"""The bounded set of reason codes (CONTRACT.md §3), plus the few this project added.
+"""The bounded set of reason codes (docs/contract.md §3), plus the few this project added.
 
 Values are stable on the wire and in journals: never rename or reuse one. The order of
 definition is the canonical order in which a refusal lists its reasons.

@@ -1,4 +1,4 @@
-"""Time arithmetic of the chunk contract (CONTRACT.md §2): conversions, expiry, clock domains."""
+"""Time arithmetic of the chunk contract (docs/contract.md §2): conversions, expiry, clocks."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The fallback state machine (CONTRACT.md §6, seed §5): table, debounce, recovery, E_STOP."""
+"""The fallback state machine (docs/contract.md §6, seed §5): table, debounce, recovery, E_STOP."""
 
 from __future__ import annotations
 
