@@ -197,8 +197,7 @@ def limits_st(draw: st.DrawFn, dim: int) -> JointLimits:
 @st.composite
 def cases(draw: st.DrawFn) -> Case:
     """A reference inside the limits (moving up to 1.2× the velocity limit) and a proposal:
-    arbitrary rows, or a motion at up to 1.5× the velocity limit and beyond the acceleration
-    limit, maybe driven into a position limit."""
+    arbitrary rows, or a policy's motion (see :func:`motion`), maybe driven into a limit."""
     dim, rows = draw(st.integers(1, 4)), draw(st.integers(1, 12))
     limits = draw(limits_st(dim))
     dt = draw(st.sampled_from([0.002, 0.01, 0.05, 0.1]))
@@ -210,13 +209,64 @@ def cases(draw: st.DrawFn) -> Case:
     if draw(st.booleans()):
         actions = np.array([[draw(floats(a - 1.0, b + 1.0)) for a, b in zip(lo, hi, strict=True)]
                             for _ in range(rows)])
-    else:
-        speed = np.array([draw(floats(-1.5, 1.5)) for _ in range(dim)]) * v_step
-        kicks = np.array([[draw(floats(-1.3, 1.3)) for _ in range(dim)] for _ in range(rows)])
-        steps = np.clip(ref_step + np.cumsum(kicks * a_step, axis=0), -np.abs(speed),
-                        np.abs(speed))
-        actions = ref_q + np.cumsum(steps, axis=0)
-    return Case(actions, ref_q, ref_step, dt, limits)
+        return Case(actions, ref_q, ref_step, dt, limits)
+    cruise = np.array([draw(floats(-1.5, 1.5)) for _ in range(dim)]) * v_step
+    if draw(st.booleans()):
+        ref_step = cruise  # already at speed: the proposal only has to keep it
+    return Case(draw(motion(ref_q, ref_step, cruise, a_step, rows)), ref_q, ref_step, dt, limits)
+
+
+@st.composite
+def motion(draw: st.DrawFn, start: np.ndarray, step: np.ndarray, cruise: np.ndarray,
+           a_step: np.ndarray, rows: int) -> np.ndarray:
+    """What a policy might send: from ``step``, ramp toward ``cruise`` (up to 1.5× the velocity
+    limit) changing the step by up to 1.3× the acceleration limit, with jitter."""
+    ramp = draw(floats(0.5, 1.3)) * a_step
+    q, out = start.copy(), []
+    for _ in range(rows):
+        jitter = np.array([draw(floats(-0.3, 0.3)) for _ in range(len(start))]) * a_step
+        step = step + np.clip(cruise - step, -ramp, ramp) + jitter
+        q = q + step
+        out.append(q)
+    return np.array(out)
+
+
+@st.composite
+def steady_motions(draw: st.DrawFn) -> Case:
+    """Far from the position limits, each joint either cruises at 0.5–1.5× its velocity limit
+    (the step changing by under half the acceleration limit) or wiggles below its velocity
+    limit with changes of step at 0.5–1.3× the acceleration limit: a proposal either side of a
+    rate bound, which the fast path of the projection sees first."""
+    dim, rows = draw(st.integers(1, 4)), draw(st.integers(1, 12))
+    dt = draw(st.sampled_from([0.002, 0.01, 0.05]))
+    velocity = np.array([draw(floats(0.1, 5.0)) for _ in range(dim)])
+    acceleration = np.array([draw(floats(0.5, 100.0)) for _ in range(dim)])
+    v_step, a_step = velocity * dt, acceleration * dt * dt
+    wide = draw(st.sampled_from([100.0, INF]))
+    limits = JointLimits(np.full(dim, -wide), np.full(dim, wide), velocity, acceleration)
+    steps = np.empty((rows, dim))
+    for joint in range(dim):
+        if draw(st.booleans()):
+            cruise = draw(floats(0.5, 1.5)) * v_step[joint] * draw(st.sampled_from([1, -1]))
+            jitter = [draw(floats(-0.2, 0.2)) * a_step[joint] for _ in range(rows)]
+            steps[:, joint] = cruise + np.array(jitter)
+        else:
+            change = draw(floats(0.5, 1.3)) * a_step[joint]
+            signs = np.where(np.arange(rows) % 2, -1.0, 1.0)
+            base = min(0.5 * v_step[joint], 0.5 * change)
+            steps[:, joint] = base + np.cumsum(signs * change) - change / 2
+    ref_step = np.clip(steps[0], -v_step, v_step)  # a reference the limits can continue
+    ref_q = np.zeros(dim)
+    return Case(ref_q + np.cumsum(steps, axis=0), ref_q, ref_step, dt, limits)
+
+
+@given(steady_motions())
+def test_steady_motion_is_left_alone_exactly_when_the_oracle_admits_it(case: Case) -> None:
+    result = case.project()
+    assert result.recoverable
+    admitted = not case.broken()
+    assert (result.max_distance == 0.0) == admitted
+    assert case.broken(result.actions) == set()
 
 
 @given(cases())
