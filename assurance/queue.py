@@ -13,6 +13,8 @@ from __future__ import annotations
 import msgspec
 import numpy as np
 
+from assurance.clock import too_old
+
 
 class Segment(msgspec.Struct, eq=False):
     chunk_id: str
@@ -20,7 +22,8 @@ class Segment(msgspec.Struct, eq=False):
     phase: str
     t_obs: int
     expires_at: int
-    """First instant at which a row of this segment is too old to run (age bound − uncertainty)."""
+    """First instant at which a row of this segment is too old to run
+    (:func:`assurance.clock.expires_at`, computed at admission)."""
     first_due: int
     dt: int
     actions: np.ndarray
@@ -46,6 +49,10 @@ class Segment(msgspec.Struct, eq=False):
 
     def due(self, row: int) -> int:
         return self.first_due + row * self.dt
+
+    def too_old(self, t: int) -> bool:
+        """Are this segment's rows too old to run at ``t``? (one rule: assurance.clock)"""
+        return too_old(t, self.expires_at)
 
     def row_at(self, t: int) -> int:
         return (t - self.first_due) // self.dt

@@ -1,4 +1,9 @@
-"""Shared set-up for runtime property tests: a core built like a scenario, and chunk makers."""
+"""Shared set-up for runtime tests: a core built like a scenario, chunk makers, and the one
+adapter through which these tests call the core.
+
+Every call these tests make to the core goes through :func:`feed` and :func:`tick`, so a change
+of the core's API (``Core.handle(event)`` / ``Core.tick(t)`` today) is a change here only.
+"""
 
 from __future__ import annotations
 
@@ -8,7 +13,10 @@ import numpy as np
 
 from assurance.event_chunk import decode_event_chunk
 from kernel.core.config import CoreConfig
-from kernel.core.events import ChunkEvent
+from kernel.core.events import ChunkEvent, Event
+from kernel.core.lines import Line
+from kernel.core.runtime import Core
+from kernel.core.tick import TickCommand
 from kernel.scenario.config import build_config
 from kernel.scenario.fields import Where
 from tools.scenarios.base import IDENTITY, ScenarioSpec
@@ -41,3 +49,16 @@ def chunk_fields(
 def chunk_event(t_ms: float, fields: dict[str, Any]) -> ChunkEvent:
     t = round(t_ms * 1_000_000)
     return ChunkEvent(t, decode_event_chunk(fields, t))
+
+
+# --- the adapter ---------------------------------------------------------------------------------
+
+
+def feed(core: Core, event: Event) -> list[Line]:
+    """Apply one event; the decision-log lines it produced."""
+    return core.handle(event)
+
+
+def tick(core: Core, t_ns: int) -> tuple[TickCommand, list[Line]]:
+    """Run the control tick at ``t_ns``: what goes out, and the lines it produced."""
+    return core.tick(t_ns)
