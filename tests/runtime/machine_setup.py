@@ -25,9 +25,11 @@ DT_MS = 10
 PERIOD_MS = 2
 
 
-def core_config(phase: str = "FREE_SPACE", **timing: Any) -> CoreConfig:
+def core_config(phase: str = "FREE_SPACE", robot: dict[str, Any] | None = None,
+                **timing: Any) -> CoreConfig:
+    """The standard cell (or ``robot``, a scenario file's robot section) as a core config."""
     spec = ScenarioSpec(name="machine", description="", events=[], until=0, expect=[],
-                        phase=phase, timing=timing)
+                        phase=phase, timing=timing, robot=robot)
     return build_config(spec.document(), Where("machine", ""))
 
 
