@@ -1,4 +1,4 @@
-"""Time arithmetic of the chunk contract (CONTRACT.md §2, seed §3.1).
+"""Time arithmetic of the chunk contract (docs/contract.md §2, seed §3.1).
 
 All times are integer nanoseconds on the client's monotonic clock unless a name says otherwise.
 Scenario files and journals carry milliseconds; the conversion happens at their edge only.
@@ -8,8 +8,14 @@ For action ``j`` of chunk ``k`` executed at ``t_exec``::
     age   = t_exec - t_obs(k)
     slack = t_deadline - t_ready
 
-An action is expired when ``age + uncertainty > max_age`` or ``slack < 0``. Both predicates are
-monotonic in the clock uncertainty: more uncertainty never makes an expired action valid.
+An action is expired when ``age + uncertainty > max_age`` or ``slack < 0``. This module is the
+one place that turns that into arithmetic, in the form the runtime needs: an action's life ends
+at an instant (:func:`expires_at`), computed once per chunk at admission; a row is too old at
+``t`` when ``t`` has reached that instant (:func:`too_old`); and the rows of a chunk's grid due
+before an instant are counted by :func:`rows_due_before`, which gives both the late prefix
+(negative slack: due before ``t_ready``) and the rows that are still young at their own due
+time. More uncertainty never makes an expired action valid; a negative uncertainty counts as
+none.
 """
 
 from __future__ import annotations
@@ -40,17 +46,23 @@ def slack(t_deadline: int, t_ready: int) -> int:
     return t_deadline - t_ready
 
 
-def conservative_age(t_exec: int, t_obs: int, uncertainty: int) -> int:
-    """The age the client must assume when clocks are known only to within ``uncertainty``."""
-    return t_exec - t_obs + max(uncertainty, 0)
+def expires_at(t_obs: int, max_age: int, uncertainty: int) -> int:
+    """The first instant at which an action conditioned on an observation sensed at ``t_obs``
+    is too old to run: ``age + uncertainty > max_age`` ⇔ ``t ≥ t_obs + max_age − uncertainty
+    + 1`` (integer nanoseconds). At ``age + uncertainty == max_age`` it may still run."""
+    return t_obs + max_age - max(uncertainty, 0) + 1
 
 
-def is_expired(
-    t_exec: int, t_obs: int, max_age: int, uncertainty: int, t_deadline: int, t_ready: int
-) -> bool:
-    """CONTRACT.md §2: too old (with uncertainty) for its phase, or late for its deadline."""
-    too_old = conservative_age(t_exec, t_obs, uncertainty) > max_age
-    return too_old or slack(t_deadline, t_ready) < 0
+def too_old(t: int, expiry: int) -> bool:
+    """Has ``t`` reached the instant ``expiry`` (from :func:`expires_at`)?"""
+    return t >= expiry
+
+
+def rows_due_before(first_due: int, dt: int, instant: int, rows: int) -> int:
+    """How many of ``rows`` actions due at ``first_due + j·dt`` are due strictly before
+    ``instant``: with ``instant = t_ready``, the late prefix (negative slack); with
+    ``instant = expires_at``, the actions still young enough at their own due time."""
+    return min(rows, max(0, -(-(instant - first_due) // dt)))
 
 
 @dataclass(frozen=True, slots=True)

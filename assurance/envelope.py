@@ -1,4 +1,4 @@
-"""The chunk envelope (CONTRACT.md §1): wire structs, the normalized chunk, and its decoders.
+"""The chunk envelope (docs/contract.md §1): wire structs, the normalized chunk, and its decoders.
 
 Two doors lead in: a scenario or journal event (a JSON mapping, times in milliseconds) and a
 wire frame (MessagePack, times in integer nanoseconds, actions as raw bytes with dtype and

@@ -1,4 +1,4 @@
-"""Admission gates (CONTRACT.md §3–§4): content, identity, context, time, state divergence.
+"""Admission gates (docs/contract.md §3–§4): content, identity, context, time, state divergence.
 
 Every gate is a pure function of the chunk and an :class:`AdmissionContext` snapshot and returns
 the reason codes that apply; the caller evaluates all of them and lists every reason, so a
@@ -12,7 +12,7 @@ from __future__ import annotations
 import msgspec
 import numpy as np
 
-from assurance.clock import ClockInvalid, ClockMap
+from assurance.clock import ClockInvalid, ClockMap, expires_at, rows_due_before, too_old
 from assurance.envelope import Chunk
 from assurance.handshake import AllowList, Session
 from assurance.identity import Seen
@@ -111,12 +111,13 @@ class Timing(msgspec.Struct, frozen=True):
     runnable_until: int = 0
     """Index of the first action already too old at its own due time."""
     expires_at: int = 0
-    """Client time from which any action of this chunk is too old to run."""
+    """Client time from which any action of this chunk is too old to run
+    (:func:`assurance.clock.expires_at`; a row is dropped once :func:`~assurance.clock.too_old`)."""
     trim: int = 0
 
 
 def time_verdict(chunk: Chunk, ctx: AdmissionContext, t_obs: int | None) -> Timing:
-    """Clock provenance, observation staleness, expiry and trimming (CONTRACT.md §2)."""
+    """Clock provenance, observation staleness, expiry and trimming (docs/contract.md §2)."""
     try:
         offset, uncertainty = ctx.clock.translator(chunk.clock_domain)
     except ClockInvalid:
@@ -129,14 +130,15 @@ def time_verdict(chunk: Chunk, ctx: AdmissionContext, t_obs: int | None) -> Timi
     policy = ctx.policy
     max_obs_age = _stricter(policy.max_observation_age_ns, times["max_observation_age"])
     started = times["inference_start"]
-    if started is not None and started + offset - t_obs + uncertainty > max_obs_age:
+    stale_from = expires_at(t_obs, max_obs_age, uncertainty)  # the same rule as for actions
+    if started is not None and too_old(started + offset, stale_from):
         reasons.append(R.OBSERVATION_STALE)
     max_age = _stricter(policy.max_action_age_ns, times["max_action_age"])
     first_due = first + offset
     horizon = chunk.actions.shape[0]
-    late = min(horizon, max(0, -(-(ctx.t - first_due) // dt)))
-    expires_at = t_obs + max_age - uncertainty + 1
-    runnable_until = min(horizon, max(0, -(-(expires_at - first_due) // dt)))
+    late = rows_due_before(first_due, dt, ctx.t, horizon)  # t_ready is the arrival instant
+    expiry = expires_at(t_obs, max_age, uncertainty)
+    runnable_until = rows_due_before(first_due, dt, expiry, horizon)
     trim = 0
     if late >= runnable_until:
         reasons.append(R.EXPIRED)
@@ -147,7 +149,7 @@ def time_verdict(chunk: Chunk, ctx: AdmissionContext, t_obs: int | None) -> Timi
             reasons.append(R.TRIM_FORBIDDEN)
         else:
             trim = late
-    return Timing(tuple(reasons), first_due, late, runnable_until, expires_at, trim)
+    return Timing(tuple(reasons), first_due, late, runnable_until, expiry, trim)
 
 
 def _stricter(phase_bound: int, proposer_bound: int | None) -> int:

@@ -52,6 +52,12 @@ class MergeInputs(msgspec.Struct, frozen=True, eq=False):
     last_setpoint: Row | None = None
     """The row the last tick sent, if it sent one: precedes the chunk when the queue has no
     row before it any more (purged by a new epoch), so the new rows continue its motion."""
+    next_tick: int | None = None
+    """When the next control tick is due, and ``period`` the control period: the rows that
+    precede the chunk are the ones ticks will actually send. A queued row whose whole window
+    falls between two ticks is never sent, so the chunk must not follow it. None: no tick
+    has run yet (every queued row is taken as sent)."""
+    period: int = 0
 
 
 class MergeDraft(msgspec.Struct, frozen=True, eq=False):
@@ -136,7 +142,8 @@ def _reference(
     rest. With nothing queued before it, it is the setpoint the last tick sent (the queue was
     purged under a moving arm), contiguous, or else the current hold (or the measured state).
     """
-    before = queue.predecessor(first_due if cut_at is None else min(first_due, cut_at))
+    before = _last_sent_before(queue, first_due if cut_at is None else min(first_due, cut_at),
+                               inputs)
     last = inputs.last_setpoint
     if before is None and last is not None and _contiguous(last, first_due, dt):
         before = last
@@ -148,6 +155,18 @@ def _reference(
         return Reference(q, np.zeros_like(q))
     step = seg.step_into(before.row)
     return Reference(q, step if seg.dt == dt else step * (dt / seg.dt))
+
+
+def _last_sent_before(queue: ActionQueue, anchor: int, inputs: MergeInputs) -> Row | None:
+    """The queued row the last tick before ``anchor`` will send (None: that tick is the next
+    one, or has run: the row it sent is ``inputs.last_setpoint``)."""
+    first_tick = inputs.next_tick
+    if first_tick is None or inputs.period <= 0:
+        return queue.predecessor(anchor)
+    if anchor <= first_tick:
+        return None
+    t_ref = first_tick + (anchor - 1 - first_tick) // inputs.period * inputs.period
+    return queue.row_in_force(t_ref) or queue.predecessor(anchor)
 
 
 def _contiguous(before: Row, first_due: int, dt: int) -> bool:

@@ -20,7 +20,7 @@ class ForceBand:
 
 @dataclass(frozen=True, slots=True)
 class PhasePolicy:
-    """CONTRACT.md §7 phase keys, in client units (ns, rad), with documented defaults."""
+    """docs/contract.md §7 phase keys, in client units (ns, rad), with documented defaults."""
 
     max_observation_age_ns: int = ms_to_ns(100)
     max_action_age_ns: int = ms_to_ns(200)

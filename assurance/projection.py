@@ -335,9 +335,3 @@ def _on_proposal(p: float, s: float, original: list[float], row: int, start: flo
     step = before - (original[row - 2] if row >= 2 else start)
     return abs(p - before) <= 1e-12 and abs(s - step) <= 1e-12
 
-
-def check_sequence(
-    actions: np.ndarray, reference: Reference, dt_s: float, limits: JointLimits
-) -> bool:
-    """True when ``actions`` already satisfy every bound (the test oracle for projection)."""
-    return not _violations(actions, reference, _bounds(limits, dt_s)).any()

@@ -13,6 +13,8 @@ from __future__ import annotations
 import msgspec
 import numpy as np
 
+from assurance.clock import too_old
+
 
 class Segment(msgspec.Struct, eq=False):
     chunk_id: str
@@ -20,7 +22,8 @@ class Segment(msgspec.Struct, eq=False):
     phase: str
     t_obs: int
     expires_at: int
-    """First instant at which a row of this segment is too old to run (age bound − uncertainty)."""
+    """First instant at which a row of this segment is too old to run
+    (:func:`assurance.clock.expires_at`, computed at admission)."""
     first_due: int
     dt: int
     actions: np.ndarray
@@ -46,6 +49,10 @@ class Segment(msgspec.Struct, eq=False):
 
     def due(self, row: int) -> int:
         return self.first_due + row * self.dt
+
+    def too_old(self, t: int) -> bool:
+        """Are this segment's rows too old to run at ``t``? (one rule: assurance.clock)"""
+        return too_old(t, self.expires_at)
 
     def row_at(self, t: int) -> int:
         return (t - self.first_due) // self.dt
@@ -127,6 +134,18 @@ class ActionQueue:
     def unrun_rows(self, t: int) -> int:
         head = self._segments[0]
         return head.rows - max(0, head.row_at(t))
+
+    def row_in_force(self, t: int) -> Row | None:
+        """The row in force at ``t`` (a later one supersedes it from its first due time on),
+        without dropping anything: a question about the future."""
+        segs = self._segments
+        for index in range(len(segs) - 1, -1, -1):
+            seg = segs[index]
+            if seg.first_due > t:
+                continue
+            row = (t - seg.first_due) // seg.dt
+            return Row(seg, row) if row < seg.rows else None
+        return None
 
     def predecessor(self, t: int) -> Row | None:
         """The last queued row due strictly before ``t``."""

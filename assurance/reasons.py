@@ -1,4 +1,4 @@
-"""The bounded set of reason codes (CONTRACT.md §3), plus the few this project added.
+"""The bounded set of reason codes (docs/contract.md §3), plus the few this project added.
 
 Values are stable on the wire and in journals: never rename or reuse one. The order of
 definition is the canonical order in which a refusal lists its reasons.
@@ -52,7 +52,7 @@ class ReasonCode(StrEnum):
     E_STOP = "E_STOP"
     RECOVERY_ACCEPTED = "RECOVERY_ACCEPTED"
     GUARD_FAILED = "GUARD_FAILED"
-    # --- added by warden (docs/contract.md, "Added reason codes") ---
+    # --- added by warden (docs/contract.md §8, "Added names") ---
     FUTURE_QUEUE_EPOCH = "FUTURE_QUEUE_EPOCH"
     """A chunk names a queue epoch this client has not issued yet."""
     GUARD_PASSED = "GUARD_PASSED"

@@ -270,10 +270,13 @@ def _can_plan(chunk: Chunk, timing: Timing, reasons: list[R]) -> bool:
 
 
 def _inputs(state: CoreState, chunk: Chunk, timing: Timing, t_obs: int | None) -> MergeInputs:
+    period = state.config.control_period_ns
     return MergeInputs(
         chunk=chunk, timing=timing, t_obs=int(t_obs or 0), epoch=state.epoch,
         blend_allowed=state.card.policy.blend, hold_q=state.hold_q, measured_q=state.measured_q,
         last_setpoint=state.last_setpoint,
+        next_tick=None if state.last_tick is None else state.last_tick + period,
+        period=period,
     )
 
 

@@ -280,8 +280,9 @@ def on_insert(state: CoreState, event: InsertEvent) -> None:
         detail = "xy, z_end and a 3x3 rotation must be finite numbers"
     else:
         try:
-            arm = state.config.limits.arm_mask
-            state.motion.contact.start(state.measured_q[arm], values[:2], float(values[2]),
+            limits = state.config.limits
+            start = limits.clip(state.measured_q)[limits.arm_mask]
+            state.motion.contact.start(start, values[:2], float(values[2]),
                                        rotation.reshape(3, 3))
         except (NoKinematics, ValueError) as error:
             detail = str(error)

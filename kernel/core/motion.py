@@ -209,18 +209,19 @@ def _planner_effect(m: MotionState, q: tuple[float, ...], retreat: bool) -> Moti
 def _contact(m: MotionState, ctx: MotionContext, command: Cmd, target: np.ndarray | None,
              bounded: bool) -> Motion:
     contact = m.contact
+    measured = _inside(m, ctx.measured)  # a measured overshoot is never a target
     if command is Cmd.RETREAT:
-        contact.begin_retreat(ctx.measured)
+        contact.begin_retreat(measured)
     elif contact.state is ContactState.IDLE:
-        contact.hold_at(ctx.measured)
+        contact.hold_at(measured)
     offer = np.asarray(target)[ctx.arm] if bounded and target is not None else None
     law = contact.step(ctx.t, ctx.config.control_period_ns * 1e-9, m.force, offer)
     # The law's targets go out as they are: a straight line in task space is a curve in joint
     # space, and an interpolator following it would cut the corner by a millimetre, more than
     # a hole's clearance. They are compliance targets, and continuous: the law starts (and a
     # force-aware retreat starts) where the arm is measured, which is where it already is.
-    _restart(m, law.q)
-    q = tuple(law.q.tolist())
+    _restart(m, law.q)  # clips into the limits: the model's own may be wider than the robot's
+    q = tuple(_commanded_array(m).tolist())
     compliant = ctx.config.motion.impedance
     stiffness = tuple(law.stiffness.tolist()) if compliant else ()
     damping = tuple(law.damping.tolist()) if compliant else ()

@@ -50,6 +50,8 @@ class CoreState:
     """The queued row the last tick sent as a policy setpoint; None after any other tick. A
     chunk admitted before the next tick is projected from it even if the queue was purged
     since (a new epoch), so the stream of sent setpoints stays inside the limits."""
+    last_tick: int | None = None
+    """When the last control tick ran (the next is due a period later)."""
     underrun_since: int | None = None
     executed_in_epoch: bool = False
     controller_ok: bool = True

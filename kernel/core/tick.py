@@ -38,6 +38,7 @@ class TickCommand(msgspec.Struct, frozen=True, eq=False):
 
 
 def tick(state: CoreState) -> TickCommand:
+    state.last_tick = state.t
     _watchdog(state)
     if state.task.phase is TaskPhase.VALIDATE:
         validate(state)
@@ -82,7 +83,7 @@ def _row_in_force(state: CoreState) -> Row | None:
     """
     while True:
         row = state.queue.active(state.t)
-        if row is None or state.t < row.segment.expires_at:
+        if row is None or not row.segment.too_old(state.t):
             return row
         dropped = state.queue.unrun_rows(state.t)
         chunk_id, _ = state.queue.drop_head()

@@ -1,4 +1,4 @@
-"""Scenario files and run journals (CONTRACT.md §7): load, validate, turn into core inputs."""
+"""Scenario files and run journals (docs/contract.md §7): load, validate, turn into core inputs."""
 
 from kernel.scenario.load import Scenario, ScenarioError, load_scenario
 

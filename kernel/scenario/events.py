@@ -1,4 +1,4 @@
-"""Scenario events → core events, validated one by one (CONTRACT.md §7, event table).
+"""Scenario events → core events, validated one by one (docs/contract.md §7, event table).
 
 An invalid *event* (unknown kind, missing field, wrong dimension, time going backwards) makes
 the file invalid and exits 2 naming it. A chunk's *content* is never a file error: whatever the

@@ -1,4 +1,4 @@
-"""Time arithmetic of the chunk contract (CONTRACT.md §2): conversions, expiry, clock domains."""
+"""Time arithmetic of the chunk contract (docs/contract.md §2): conversions, expiry, clocks."""
 
 from __future__ import annotations
 
@@ -13,12 +13,13 @@ from assurance.clock import (
     ClockMap,
     ClockSync,
     age,
-    conservative_age,
+    expires_at,
     finite_ms,
-    is_expired,
     ms_to_ns,
     ns_to_ms,
+    rows_due_before,
     slack,
+    too_old,
 )
 
 times = st.integers(-(10**15), 10**15)
@@ -56,45 +57,86 @@ def test_ns_survive_a_trip_through_fractional_ms(ns: int) -> None:
 
 
 # --- age, slack, expiry --------------------------------------------------------------------------
+# The contract's predicate, written out here as the oracle: an action executed at t_exec is too
+# old when age + uncertainty > max_age, and late when its slack is negative.
+
+
+def contract_too_old(t_exec: int, t_obs: int, max_age: int, uncertainty: int) -> bool:
+    return age(t_exec, t_obs) + max(uncertainty, 0) > max_age
 
 
 def test_age_and_slack_are_plain_differences() -> None:
     assert age(150, 100) == 50
     assert slack(100, 130) == -30
-    assert conservative_age(150, 100, 7) == 57
-    assert conservative_age(150, 100, -7) == 50  # a negative uncertainty never shortens age
 
 
-@given(times, times, uncertainties, uncertainties)
-def test_conservative_age_is_monotonic_in_uncertainty(
-    t_exec: int, t_obs: int, u1: int, extra: int
+def test_the_boundary_instant_is_still_valid_one_ns_later_is_not() -> None:
+    # observation at 100 ns, 100 ns allowed: age 100 runs, age 101 does not
+    expiry = expires_at(t_obs=100, max_age=100, uncertainty=0)
+    assert expiry == 201
+    assert not too_old(200, expiry) and too_old(201, expiry)
+    # 1 ns of uncertainty: age 99 + 1 == 100 runs, age 100 + 1 does not
+    expiry = expires_at(100, 100, 1)
+    assert not too_old(199, expiry) and too_old(200, expiry)
+
+
+def test_a_negative_uncertainty_counts_as_none() -> None:
+    assert expires_at(100, 100, -7) == expires_at(100, 100, 0)
+
+
+@given(times, times, st.integers(0, 10**10), st.integers(-(10**9), 10**9))
+def test_too_old_is_the_contract_predicate(
+    t_exec: int, t_obs: int, max_age: int, uncertainty: int
 ) -> None:
-    assert conservative_age(t_exec, t_obs, u1 + extra) >= conservative_age(t_exec, t_obs, u1)
+    assert too_old(t_exec, expires_at(t_obs, max_age, uncertainty)) == contract_too_old(
+        t_exec, t_obs, max_age, uncertainty)
 
 
-@given(times, times, st.integers(0, 10**10), uncertainties, uncertainties, times, times)
+@given(times, times, st.integers(0, 10**10), uncertainties, uncertainties)
 def test_more_uncertainty_never_turns_an_expired_action_valid(
-    t_exec: int, t_obs: int, max_age: int, u1: int, extra: int, deadline: int, ready: int
+    t_exec: int, t_obs: int, max_age: int, u1: int, extra: int
 ) -> None:
-    if is_expired(t_exec, t_obs, max_age, u1, deadline, ready):
-        assert is_expired(t_exec, t_obs, max_age, u1 + extra, deadline, ready)
+    assert expires_at(t_obs, max_age, u1 + extra) <= expires_at(t_obs, max_age, u1)
+    if too_old(t_exec, expires_at(t_obs, max_age, u1)):
+        assert too_old(t_exec, expires_at(t_obs, max_age, u1 + extra))
 
 
-@given(times, st.integers(1, 10**9), uncertainties)
-def test_negative_slack_always_expires(deadline: int, late_by: int, u: int) -> None:
-    # fresh observation, generous age bound: only the slack can expire it
-    assert is_expired(deadline, deadline, 10**12, u, deadline, deadline + late_by)
+@given(st.integers(-(10**6), 10**6), st.integers(1, 1000), st.integers(-(10**6), 10**6),
+       st.integers(0, 60))
+def test_rows_due_before_counts_each_row_with_a_deadline_before_the_instant(
+    first_due: int, dt: int, instant: int, rows: int
+) -> None:
+    expected = sum(1 for j in range(rows) if first_due + j * dt < instant)
+    assert rows_due_before(first_due, dt, instant, rows) == expected
 
 
-def test_expiry_boundaries() -> None:
-    # age + u == max_age is still valid; one ns more is expired
-    assert not is_expired(t_exec=200, t_obs=100, max_age=100, uncertainty=0, t_deadline=200,
-                          t_ready=200)
-    assert is_expired(200, 100, 100, 1, 200, 200)
-    assert is_expired(201, 100, 100, 0, 201, 201)
-    # zero slack is on time
-    assert not is_expired(100, 100, 100, 0, 150, 150)
-    assert is_expired(100, 100, 100, 0, 150, 151)
+def test_negative_slack_is_the_late_prefix_and_zero_slack_is_on_time() -> None:
+    # rows due at 100, 110, 120, ... ns
+    assert rows_due_before(100, 10, instant=100, rows=5) == 0  # ready exactly when row 0 is due
+    assert rows_due_before(100, 10, 101, 5) == 1  # row 0's slack is −1 ns
+    assert rows_due_before(100, 10, 120, 5) == 2
+    assert rows_due_before(100, 10, 10**9, 5) == 5
+    for ready in (100, 101, 120):
+        late = [j for j in range(5) if slack(100 + j * 10, ready) < 0]
+        assert rows_due_before(100, 10, ready, 5) == len(late)
+
+
+def test_a_long_tail_outlives_the_bound_while_its_head_runs() -> None:
+    """Observation at 0, 100 ms allowed, 2 ms of uncertainty, ten actions every 20 ms from
+    40 ms: actions at 40, 60, 80 ms are young enough when due; 100 ms onwards are not."""
+    ms = NS_PER_MS
+    expiry = expires_at(0, 100 * ms, 2 * ms)
+    assert expiry == 98 * ms + 1
+    assert rows_due_before(40 * ms, 20 * ms, expiry, 10) == 3
+    assert [too_old(40 * ms + j * 20 * ms, expiry) for j in range(5)] == [
+        False, False, False, True, True]
+    assert not too_old(98 * ms, expiry) and too_old(98 * ms + 1, expiry)
+
+
+def test_an_old_observation_leaves_no_row_young_enough() -> None:
+    ms = NS_PER_MS
+    expiry = expires_at(-200 * ms, 100 * ms, 0)  # too old from −100 ms + 1 ns on
+    assert rows_due_before(0, 10 * ms, expiry, 10) == 0
 
 
 # --- clock domains -------------------------------------------------------------------------------

@@ -1,4 +1,4 @@
-"""The chunk envelope (CONTRACT.md §1): scenario and wire decoders, payload hash, round trip."""
+"""The chunk envelope (docs/contract.md §1): scenario and wire decoders, payload hash."""
 
 from __future__ import annotations
 

@@ -1,15 +1,13 @@
-"""The fallback state machine (CONTRACT.md §6, seed §5): table, debounce, recovery, E_STOP."""
+"""The fallback state machine (docs/contract.md §6, seed §5): examples of debounce, recovery,
+E_STOP and refusal triggers. Every rule, from every state, is in test_fallback_table.py."""
 
 from __future__ import annotations
 
 import pytest
-from hypothesis import strategies as st
-from hypothesis.stateful import RuleBasedStateMachine, invariant, rule
 
 from assurance.fallback import (
     IRRELEVANT,
     MODES,
-    REFUSAL_PRIORITY,
     FallbackMachine,
     Mode,
     ModeCard,
@@ -161,72 +159,3 @@ def test_the_most_severe_refusal_reason_is_the_trigger() -> None:
     assert refusal_trigger((R.NONFINITE,)) is R.NONFINITE
     assert refusal_trigger(()) is None
     assert refusal_trigger((R.GUARD_FAILED,)) is None
-
-
-def test_every_refusal_trigger_has_a_rule_out_of_running() -> None:
-    rules = machine().rules
-    for trigger in REFUSAL_PRIORITY:
-        assert Mode.RUNNING in rules[trigger].sources
-
-
-# --- stateful ----------------------------------------------------------------------------------
-
-
-class FallbackStates(RuleBasedStateMachine):
-    def __init__(self) -> None:
-        super().__init__()
-        self.fsm = FallbackMachine(degrade_after=2)
-
-    @rule(trigger=st.sampled_from(list(R)))
-    def fire(self, trigger: R) -> None:
-        before = self.fsm.mode
-        rule_ = self.fsm.rules.get(trigger)
-        transition = self.fsm.fire(trigger)
-        if rule_ is None or before not in rule_.sources:
-            assert transition is None and self.fsm.mode is before
-        if transition is not None:
-            assert transition.source is before and transition.target is rule_.to
-            assert self.fsm.mode is rule_.to
-        if before is Mode.E_STOP:
-            assert self.fsm.mode is Mode.E_STOP
-
-    @rule(valid=st.booleans(), ok=st.booleans())
-    def recover(self, valid: bool, ok: bool) -> None:
-        before = self.fsm.mode
-        self.fsm.recover(valid, ok)
-        if before is Mode.E_STOP:
-            assert self.fsm.mode is Mode.E_STOP
-
-    @rule()
-    def release(self) -> None:
-        before = self.fsm.mode
-        self.fsm.release()
-        if before is Mode.E_STOP:
-            assert self.fsm.mode is Mode.E_STOP
-
-    @rule()
-    def validated(self) -> None:
-        before = self.fsm.mode
-        transition = self.fsm.validated()
-        assert (transition is not None) == (before is Mode.DEGRADED)
-
-    @rule(clear=st.booleans())
-    def reset(self, clear: bool) -> None:
-        before = self.fsm.mode
-        self.fsm.reset(clear)
-        if before is Mode.E_STOP:
-            assert self.fsm.mode is (Mode.SAFE_HOLD if clear else Mode.E_STOP)
-        else:
-            assert self.fsm.mode is before
-
-    @rule()
-    def healthy_chunk(self) -> None:
-        self.fsm.clear_debounce()
-
-    @invariant()
-    def mode_is_a_mode(self) -> None:
-        assert isinstance(self.fsm.mode, Mode)
-        assert (self.fsm.cause is None) == (self.fsm.mode is Mode.RUNNING)
-
-
-TestFallbackStates = FallbackStates.TestCase

@@ -6,6 +6,8 @@ from typing import Any
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from assurance.clock import ClockMap, ClockSync
 from assurance.envelope import Chunk
@@ -205,6 +207,75 @@ def test_a_synced_foreign_clock_is_translated() -> None:
     timing = time_verdict(c, at(100, clock=clock), t_obs=0)
     assert timing.first_due == 100 * MS and timing.reasons == ()
     assert timing.expires_at == 200 * MS - 2 * MS + 1
+
+
+def fresh() -> Chunk:
+    """The standard chunk without an inference start: staleness is not judged, only expiry."""
+    return chunk(inference_start=None)
+
+
+def test_a_long_tail_is_admitted_and_expires_at_the_instant_its_rows_become_too_old() -> None:
+    """Observation 150 ms before the first action, 200 ms allowed: actions at 100..150 ms are
+    young enough when due (150 ms exactly at the bound), the tail from 160 ms on is not. The
+    chunk is admitted (the tail is dropped when due, by the queue), and its expiry instant is
+    the bound to the nanosecond."""
+    timing = time_verdict(fresh(), at(100), t_obs=-50 * MS)
+    assert timing.reasons == () and timing.late == 0
+    assert timing.runnable_until == 6
+    assert timing.expires_at == 150 * MS + 1  # age 200 ms at 150 ms may run; 1 ns later not
+    clocked = at(100, clock=ClockMap(base_uncertainty_ns=1))
+    assert time_verdict(fresh(), clocked, t_obs=-50 * MS).runnable_until == 5  # 150 ms: too old
+    assert time_verdict(fresh(), clocked, t_obs=-50 * MS + 1).runnable_until == 6
+
+
+def test_an_observation_exactly_at_the_bound_still_runs_one_ns_older_is_expired() -> None:
+    """The first action is due at 100 ms; 200 ms allowed."""
+    on_the_bound = time_verdict(fresh(), at(100), t_obs=-100 * MS)
+    assert on_the_bound.reasons == () and on_the_bound.runnable_until == 1
+    older = time_verdict(fresh(), at(100), t_obs=-100 * MS - 1)
+    assert older.reasons == (R.EXPIRED,) and older.runnable_until == 0
+
+
+def test_a_synced_clock_brings_expiry_earlier_by_half_its_round_trip_and_the_base() -> None:
+    clock = ClockMap(base_uncertainty_ns=3 * MS).with_sync(
+        ClockSync("server", offset_ns=-1000 * MS, round_trip_ns=10 * MS))
+    c = chunk(clock_domain="server", first_action_time=1100, inference_start=None)
+    timing = time_verdict(c, at(100, clock=clock), t_obs=-50 * MS)
+    assert timing.expires_at == 150 * MS - 8 * MS + 1
+    assert timing.runnable_until == 5  # 140 ms is due before 142 ms + 1 ns, 150 ms is not
+
+
+@pytest.mark.parametrize(("ready_ns", "late"), [(100 * MS - 1, 0), (100 * MS, 0),
+                                                (100 * MS + 1, 1), (110 * MS, 1),
+                                                (110 * MS + 1, 2)])
+def test_negative_slack_at_the_nanosecond(ready_ns: int, late: int) -> None:
+    """An action due exactly when the chunk is ready has zero slack: on time."""
+    assert time_verdict(chunk(), context(t=ready_ns), t_obs=0).late == late
+
+
+@given(st.integers(-400, 150), st.integers(0, 300), st.integers(1, 20), st.integers(0, 20),
+       st.integers(20, 250), st.booleans())
+def test_the_time_verdict_agrees_with_the_contract_action_by_action(
+    obs_ms: int, ready_ms: int, dt_ms: int, uncertainty_ms: int, max_age_ms: int, trim: bool
+) -> None:
+    """Each action judged by the contract's own words at its due time: late when its slack is
+    negative, too old when age + uncertainty > max age. EXPIRED exactly when no action is
+    both; with trimming, a late prefix before runnable actions is trimmed."""
+    c = chunk(action_dt=dt_ms, max_action_age=max_age_ms, inference_start=None)
+    ctx = context(t=ready_ms * MS, clock=ClockMap(base_uncertainty_ns=uncertainty_ms * MS),
+                  policy={"trim": trim})
+    timing = time_verdict(c, ctx, t_obs=obs_ms * MS)
+    due = [(100 + j * dt_ms) * MS for j in range(10)]
+    late = [d - ready_ms * MS < 0 for d in due]
+    bound = min(max_age_ms, 200) * MS  # the stricter of the chunk's and the phase's
+    old = [d - obs_ms * MS + uncertainty_ms * MS > bound for d in due]
+    runnable = [not a and not b for a, b in zip(late, old, strict=True)]
+    assert timing.late == sum(late)
+    assert timing.runnable_until == sum(1 for o in old if not o)
+    assert (R.EXPIRED in timing.reasons) == (not any(runnable) or (any(late) and not trim))
+    if R.EXPIRED not in timing.reasons:
+        assert timing.trim == sum(late)
+        assert all(runnable[timing.trim:timing.runnable_until])
 
 
 def test_unknown_observation_or_schedule_gives_no_time_reasons() -> None:

@@ -1,7 +1,8 @@
 """Joint-space feasibility projection: the projected sequence is admissible, minimal, idempotent.
 
-``check_sequence`` is the oracle: it checks position, velocity (step), acceleration (change of
-step) and braking (from every setpoint the joint can still stop inside its limits).
+The oracle is ``tests/core/projection_oracle.py``, written from the limits alone: position,
+velocity (step), acceleration (change of step) and braking (from every setpoint the joint can
+still stop inside its limits, simulated). The fast check's own tests use the module's internals.
 """
 
 from __future__ import annotations
@@ -20,10 +21,10 @@ from assurance.projection import (
     _bounds,
     _inside,
     braking_distance,
-    check_sequence,
     max_step_toward,
     project,
 )
+from tests.core.projection_oracle import violations
 
 INF = float("inf")
 EPS = 1e-9
@@ -107,6 +108,11 @@ def fast_check(case: Case) -> bool:
     return _inside(case.actions, case.ref, bounds.mid, band)
 
 
+def admissible(actions: np.ndarray, ref: Reference, dt: float, limits: JointLimits) -> bool:
+    """The oracle's verdict: no bound broken."""
+    return not violations(actions, ref.q, ref.step, dt, limits)
+
+
 def run(case: Case):
     return project(case.actions, case.ref, case.dt, case.limits)
 
@@ -118,13 +124,13 @@ def run(case: Case):
 def test_a_recoverable_projection_passes_every_bound(case: Case) -> None:
     result = run(case)
     if result.recoverable:
-        assert check_sequence(result.actions, case.ref, case.dt, case.limits)
+        assert admissible(result.actions, case.ref, case.dt, case.limits)
 
 
 @given(cases() | feasible_cases(rate_scale=1.2) | near_limit_cases())
-def test_the_fast_check_never_admits_what_the_exact_check_refuses(case: Case) -> None:
+def test_the_fast_check_never_admits_what_the_oracle_refuses(case: Case) -> None:
     if fast_check(case):
-        assert check_sequence(case.actions, case.ref, case.dt, case.limits)
+        assert admissible(case.actions, case.ref, case.dt, case.limits)
 
 
 @given(feasible_cases())
@@ -158,7 +164,7 @@ def test_the_fast_check_survives_limits_of_any_magnitude(
     limits = JointLimits(np.array([lower]), np.array([upper]), np.array([1.0]),
                          np.array([10.0]), gripper_index=grip)
     case = Case(np.array([[value]]), at_rest(value), 0.01, limits)
-    assert not check_sequence(case.actions, case.ref, case.dt, case.limits)
+    assert not admissible(case.actions, case.ref, case.dt, case.limits)
     assert not fast_check(case)
     assert run(case).actions[0, 0] == pytest.approx(min(max(value, lower), upper))
 
@@ -173,7 +179,7 @@ def test_the_fast_check_allows_for_the_rate_tolerance_on_a_slow_axis() -> None:
     edge = bounds.mid[0] + bounds.band(1)[0][2, 0]
     case = Case(np.array([[edge]]), Reference(np.array([edge - step]), np.array([step])), dt,
                 limits)
-    assert fast_check(case) == check_sequence(case.actions, case.ref, case.dt, case.limits)
+    assert fast_check(case) == admissible(case.actions, case.ref, case.dt, case.limits)
 
 
 @pytest.mark.parametrize("outside", [0.0, 1e-6, 0.004])
@@ -187,7 +193,7 @@ def test_cruising_into_a_limit_brakes_in_time(outside: float) -> None:
     proposal = start + v_step * np.arange(1, 31, dtype=float)[:, None]
     result = project(proposal, ref, dt, limits)
     assert result.recoverable
-    assert check_sequence(result.actions, ref, dt, limits)
+    assert admissible(result.actions, ref, dt, limits)
 
 
 def test_an_astronomical_room_gives_a_braking_bound_not_an_overflow() -> None:
@@ -220,7 +226,7 @@ def test_the_fast_check_refuses_nan() -> None:
 
 @given(feasible_cases())
 def test_an_admissible_sequence_is_returned_unchanged(case: Case) -> None:
-    assert check_sequence(case.actions, case.ref, case.dt, case.limits)
+    assert admissible(case.actions, case.ref, case.dt, case.limits)
     result = run(case)
     np.testing.assert_array_equal(result.actions, case.actions)
     assert result.max_distance == 0.0 and result.recoverable
@@ -277,7 +283,7 @@ def test_the_gripper_does_not_influence_the_arm(case: Case) -> None:
 def test_rows_before_the_first_violation_are_untouched(case: Case) -> None:
     result = run(case)
     for h in range(case.actions.shape[0]):
-        if not check_sequence(case.actions[: h + 1], case.ref, case.dt, case.limits):
+        if not admissible(case.actions[: h + 1], case.ref, case.dt, case.limits):
             break
         assert result.distances[h] == 0.0
 

@@ -100,6 +100,15 @@ def test_depth_is_bounded_by_the_end_and_by_expiry() -> None:
     assert queue_of(seg("a", 0, 10)).depth_ns(500) == 0
 
 
+def test_a_segment_is_too_old_from_its_expiry_instant_on() -> None:
+    """The rule of assurance.clock: valid up to expires_at − 1 ns, too old at expires_at."""
+    long_tail = seg("a", 0, 10, expires_at=45)  # rows due 0..90, young enough until 44
+    assert not long_tail.too_old(44) and long_tail.too_old(45) and long_tail.too_old(90)
+    assert queue_of(long_tail).active(44).row == 4  # the row in force is still young ...
+    assert long_tail.too_old(45)  # ... and the same row is too old 1 ns later
+    assert queue_of(long_tail).depth_ns(44) == 1
+
+
 def test_purge_empties_and_counts() -> None:
     queue = queue_of(seg("a", 0, 4), seg("b", 100, 3))
     assert queue.purge() == 7

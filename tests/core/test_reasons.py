@@ -1,32 +1,46 @@
-"""Reason codes: the enum holds every code of CONTRACT.md §3; canonical order and dedup."""
+"""Reason codes: the enum holds every code of docs/contract.md §3 and the names §8 added;
+canonical order and dedup."""
 
 from __future__ import annotations
 
 import re
 from pathlib import Path
 
-import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
 from assurance.reasons import CONTRACT_CODES, ReasonCode, canonical, is_known
 
-CONTRACT = Path(__file__).resolve().parents[2] / ".." / "shared" / "CONTRACT.md"
+CONTRACT = Path(__file__).resolve().parents[2] / "docs" / "contract.md"
 
 
-def contract_codes() -> list[str]:
-    """Every backticked code in the first column of the §3 table (incl. the trigger row)."""
-    if not CONTRACT.is_file():
-        pytest.skip(f"public contract not found at {CONTRACT}")
+def _section(heading: str) -> str:
+    """The body of the section whose heading line matches ``heading`` (a regex), up to the next
+    heading of any level. A missing file or section fails: the contract is part of the repo."""
     text = CONTRACT.read_text(encoding="utf-8")
-    match = re.search(r"^## 3\. Reason codes\n(.*?)(?=^## )", text, re.S | re.M)
-    assert match, "CONTRACT.md has no '## 3. Reason codes' section"
+    match = re.search(rf"^{heading}\n(.*?)(?=^#+ |\Z)", text, re.S | re.M)
+    assert match, f"{CONTRACT} has no section matching {heading!r}"
+    return match.group(1)
+
+
+def _first_column_codes(section: str) -> list[str]:
+    """Every backticked code in the first column of the section's tables."""
     codes: list[str] = []
-    for line in match.group(1).splitlines():
+    for line in section.splitlines():
         cells = line.split("|")
         if len(cells) >= 3 and "`" in cells[1]:
             codes += re.findall(r"`([A-Z_]+)`", cells[1])
     return codes
+
+
+def contract_codes() -> list[str]:
+    """Every code of the §3 table (incl. the trigger row)."""
+    return _first_column_codes(_section(r"## 3\. Reason codes"))
+
+
+def added_codes() -> list[str]:
+    """Every code warden added (§8, "Added names")."""
+    return _first_column_codes(_section(r"### Added names"))
 
 
 def test_the_contract_table_was_parsed() -> None:
@@ -42,6 +56,12 @@ def test_every_contract_code_is_in_the_enum() -> None:
 
 def test_contract_codes_are_exactly_the_contract_table() -> None:
     assert {code.value for code in CONTRACT_CODES} == set(contract_codes())
+
+
+def test_every_added_code_is_documented_and_no_more() -> None:
+    added = added_codes()
+    assert len(added) == len(set(added))
+    assert set(added) == {code.value for code in ReasonCode if code not in CONTRACT_CODES}
 
 
 def test_values_equal_names() -> None:

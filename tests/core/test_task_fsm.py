@@ -1,4 +1,4 @@
-"""The task FSM (CONTRACT.md §6): phases advance on evidence, never on confidence."""
+"""The task FSM (docs/contract.md §6): phases advance on evidence, never on confidence."""
 
 from __future__ import annotations
 

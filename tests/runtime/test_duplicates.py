@@ -11,6 +11,7 @@ from kernel.core.events import ChunkEvent
 from kernel.core.lines import encode
 from kernel.core.runtime import Core
 from kernel.scenario import Scenario, load_scenario
+from tests.runtime.machine_setup import feed
 
 ROOT = Path(__file__).resolve().parents[2] / "manifests" / "scenarios"
 BASES = [load_scenario(ROOT / f"{name}.json") for name in (
@@ -24,7 +25,7 @@ def _log(scenario: Scenario, extra: list[ChunkEvent]) -> list[bytes]:
     variant = Scenario(scenario.name, scenario.path, scenario.config, events,
                        scenario.until_ns, scenario.recorded_ticks)
     core = Core(variant.config)
-    return [encode(line) for event in variant.timeline() for line in core.step(event).lines]
+    return [encode(line) for event in variant.timeline() for line in feed(core, event)]
 
 
 @st.composite
