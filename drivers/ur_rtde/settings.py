@@ -43,10 +43,11 @@ class URSettings:
     """Bound on commands that return once the arm has decelerated (stopJ, servoStop, ...)."""
     stall_periods: int = 50
     """No new RTDE timestamp for this many output periods while reading → WATCHDOG."""
-    watchdog_periods: int = 10
+    watchdog_periods: int = 25
     """Controller-side RTDE watchdog (ur_rtde ``setWatchdog``): the controller stops the control
     script, and with it the arm, when no command reaches it for this many control periods
-    (20 ms at 500 Hz). Armed by the first motion setpoint after activation, fed by every
+    (50 ms at 500 Hz: on a loaded 2-core test machine the loop went silent for over 20 ms
+    once in a while). Armed by the first motion setpoint after activation, fed by every
     setpoint, removed on deactivate. 0 switches it off (then nothing stops the arm if warden
     dies while streaming a velocity or a far target)."""
     reconnect_attempts: int = 2

@@ -214,8 +214,9 @@ class Bus:
         }
 
     def _peek(self, request: dict[str, Any]) -> dict[str, Any]:
-        """Not a fault: one control-table item as the servo holds it (tests, no bus needed)."""
-        address, size = int(request["address"]), int(request.get("size", 1))
+        """Not a fault: one control-table item (``item``: its address, ``size`` in bytes) as
+        the servo holds it, signed (tests, no bus needed)."""
+        address, size = int(request["item"]), int(request.get("size", 1))
         with self.lock:
             value = self.servos[self._known_id(request)].get(address, size, signed=True)
         return {"value": value}

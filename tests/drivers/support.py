@@ -65,11 +65,15 @@ def wait_for_line(child: subprocess.Popen[str], prefix: str) -> str:
     raise AssertionError(f"child exited with {child.wait()} before printing {prefix!r}")
 
 
-def wait_until_moving(truth: GroundTruth, joint: int, min_rad_s: float,
-                      timeout_s: float) -> dict[str, Any]:
-    """Poll the ground truth until ``joint`` moves faster than ``min_rad_s``."""
+def wait_until_moving(truth: GroundTruth, child: subprocess.Popen[str], joint: int,
+                      min_rad_s: float, timeout_s: float) -> dict[str, Any]:
+    """Poll the ground truth until ``joint`` moves faster than ``min_rad_s`` while ``child``
+    (the process commanding it) runs."""
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
+        if child.poll() is not None:
+            raise AssertionError(f"the streaming child exited with {child.returncode} (its "
+                                 "stderr is in the captured output)")
         sample = truth()
         if abs(sample["qd"][joint]) > min_rad_s:
             return sample
