@@ -150,7 +150,8 @@ class URRTDEDriver:
         if command.kind is CommandKind.POSITION:
             if not _well_formed(command.q):
                 return await self._refused_and_kicked(command.kind)
-            await self._arm_watchdog(link)
+            if self._watchdog_hz is not None and not link.watchdog.armed:
+                await self._arm_watchdog(link, self._watchdog_hz)
             q = self._clip_position(command.q)
             dt = max(self._period_s(), tables.CONTROLLER_CYCLE_S)
             return await self._applied(command.kind, lambda: link.servo_j(q, dt), q=q,
@@ -158,7 +159,8 @@ class URRTDEDriver:
         if command.kind is CommandKind.VELOCITY:
             if not _well_formed(command.qd):
                 return await self._refused_and_kicked(command.kind)
-            await self._arm_watchdog(link)
+            if self._watchdog_hz is not None and not link.watchdog.armed:
+                await self._arm_watchdog(link, self._watchdog_hz)
             qd = self._clip_velocity(command.qd)
             return await self._applied(command.kind, lambda: link.speed_j(qd), qd=qd,
                                        timeout_s=self._setpoint_timeout(link, Mode.SPEED))
@@ -229,16 +231,14 @@ class URRTDEDriver:
         if link.gripper_needs_write(closed):
             await self._run(link.set_gripper, closed)
 
-    async def _arm_watchdog(self, link: Link) -> None:
+    async def _arm_watchdog(self, link: Link, frequency_hz: float) -> None:
         """Once per activation, with the first motion setpoint (one blocking round trip)."""
-        if self._watchdog_hz is None or link.watchdog.armed:
-            return
-        if not await self._run(link.arm_watchdog, self._watchdog_hz,
+        if not await self._run(link.arm_watchdog, frequency_hz,
                                timeout_s=self.settings.stop_timeout_s):
             await self._read_checked(streaming=True)  # the status words say why, if they can
             raise DeviceFault(self.name, f"the control script on the arm at "
                               f"{self.settings.host} did not confirm setWatchdog("
-                              f"{self._watchdog_hz:g} Hz)", ReasonCode.CONTROLLER_REJECT)
+                              f"{frequency_hz:g} Hz)", ReasonCode.CONTROLLER_REJECT)
 
     async def _refused_and_kicked(self, kind: CommandKind) -> Applied:
         """A setpoint refused before it reached the library: nothing went out, so kick the
