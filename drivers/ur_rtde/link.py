@@ -256,9 +256,11 @@ class Link:
         return self.watchdog.arm(self._require_fresh(), frequency_hz)
 
     def kick_watchdog(self) -> None:
-        """For a write cycle that sends no setpoint (a setpoint is itself a kick)."""
+        """For a write cycle that sends no setpoint (a setpoint is itself a kick; a kick right
+        after one can hide it from the script, see ``watchdog``)."""
         control = self._require_control()
-        self._guarded(lambda: self.watchdog.kick(control) is None)
+        if self.watchdog.armed:
+            self._guarded(control.kickWatchdog)  # fire-and-forget: no answer to wait for
 
     def disarm_watchdog(self) -> None:
         """Stop the control script if a watchdog is armed (the only way to remove it)."""

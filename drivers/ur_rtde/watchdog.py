@@ -65,11 +65,6 @@ class ControlWatchdog:
         """The script it belonged to has ended (or is being replaced)."""
         self.frequency_hz = None
 
-    def kick(self, control: _sdk.ControlInterface) -> None:
-        """Only in a write cycle that sends no setpoint (see the module docstring)."""
-        if self.armed:
-            control.kickWatchdog()
-
     def disarm(self, control: _sdk.ControlInterface) -> None:
         """Stop the control script: the only way to remove a watchdog. The arm stays powered;
         the next activation uploads the script again."""
