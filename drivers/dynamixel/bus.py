@@ -12,15 +12,22 @@ configured, read and released with the joints, and its goal rides in the joints'
 but only when a command asks for it: holding the arm never touches the gripper's goal.
 Closing the bus switches its torque off with the joints' (a servo's safe state when the runtime
 lets go of the arm): a grasp outlasts that only if the gripper's gearing holds it.
+
+The Bus Watchdog (98) of every servo, gripper included, is cleared with checked writes (a servo
+whose firmware lacks it says so), armed with one broadcast, and fed by every packet. A servo
+whose watchdog expired stops and ignores the goals of sync writes without a word, so after any
+silence long enough to have expired it, the next read or write first reads 98 back.
 """
 
 from __future__ import annotations
 
 import contextlib
+import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
-from drivers.base import DriverInitError, DriverIOError, NotConnected
+from assurance.reasons import ReasonCode
+from drivers.base import DeviceFault, DriverInitError, DriverIOError, NotConnected
 from drivers.dynamixel import messages, tables
 from drivers.dynamixel._sdk import (
     COMM_SUCCESS,
@@ -62,6 +69,10 @@ class DynamixelBus(BusTransactions):
         self._goals: GroupSyncWriteLike | None = None
         self._goals_and_gripper: GroupSyncWriteLike | None = None
         self._torque: GroupSyncWriteLike | None = None
+        self._watchdog_reader: GroupSyncReadLike | None = None
+        self._watchdog_writer: GroupSyncWriteLike | None = None
+        self.watchdog_units = 0
+        """The Bus Watchdog value armed on every servo (0: not armed)."""
         self._abandoned = False
 
     # ------------------------------------------------------------------ lifecycle
@@ -166,6 +177,7 @@ class DynamixelBus(BusTransactions):
             DeviceFault: a status packet carried the alert bit (CONTROLLER_FAULT, with the
                 Hardware Error Status bits named) or an error number (CONTROLLER_REJECT).
         """
+        self._expect_watchdogs_alive()
         with self._link_errors():
             self._sync_read()
             reader = self._require(self._reader)
@@ -187,15 +199,70 @@ class DynamixelBus(BusTransactions):
         Raises:
             DriverIOError: the packet could not be sent (port closed or gone).
         """
+        self._expect_watchdogs_alive()
         goals = self._goal_group(gripper)
         for dxl_id, tick in zip(self.settings.ids, ticks, strict=True):
             goals.changeParam(dxl_id, le_bytes(tick, tables.GOAL_POSITION.size))
         with self._link_errors():
+            self.last_sent_ns = time.monotonic_ns()
             result = goals.txPacket()
         self.counters.transactions += 1
         if result != COMM_SUCCESS:
             raise DriverIOError(self.device, f"sync write of goal positions on "
                                 f"{self.settings.port} failed: {self._text(result)}")
+
+    # ------------------------------------------------------------------ bus watchdog
+
+    def clear_watchdogs(self) -> None:
+        """Bus Watchdog := 0 on every servo, checked: off, and any Bus Watchdog Error cleared
+        (the only way out of it), so that goals are taken again.
+
+        Raises:
+            DriverInitError: a servo refused it (firmware older than v38 has no address 98).
+        """
+        with self._link_errors():
+            for dxl_id in self.settings.all_ids:
+                try:
+                    self._write_item(dxl_id, tables.BUS_WATCHDOG, 0)
+                except DeviceFault as error:
+                    raise DriverInitError(self.device, messages.watchdog_unsupported(
+                        self.settings.port, dxl_id, str(error), self.settings.gripper_id),
+                    ) from error
+        self.watchdog_units = 0
+
+    def arm_watchdogs(self, units: int) -> None:
+        """One broadcast (no reply, about 0.1 ms on the wire): every servo stops when no
+        instruction packet reaches it for ``units`` × 20 ms while its torque is on."""
+        writer = self._require(self._watchdog_writer)
+        for dxl_id in self.settings.all_ids:
+            writer.changeParam(dxl_id, [units])
+        with self._link_errors():
+            self.last_sent_ns = time.monotonic_ns()
+            result = writer.txPacket()
+        if result != COMM_SUCCESS:
+            raise DriverIOError(self.device, f"sync write of the Bus Watchdog on "
+                                f"{self.settings.port} failed: {self._text(result)}")
+        self.watchdog_units = units
+
+    def _expect_watchdogs_alive(self) -> None:
+        """After a silence of half the watchdog time or more, read 98 back before trusting a
+        sync write to be heard (host and servo clocks, and USB latency, differ by far less).
+
+        Raises:
+            DeviceFault: WATCHDOG, naming the servos whose watchdog expired.
+        """
+        watchdog_s = self.watchdog_units * tables.BUS_WATCHDOG_UNIT_S
+        if not watchdog_s or (time.monotonic_ns() - self.last_sent_ns) * 2e-9 < watchdog_s:
+            return
+        reader = self._require(self._watchdog_reader)
+        with self._link_errors():
+            self._sync_read(reader)
+        stopped = [i for i in self.settings.all_ids if to_signed(reader.getData(
+            i, tables.BUS_WATCHDOG.address, 1), 1) == tables.BUS_WATCHDOG_ERROR]
+        if stopped:
+            raise DeviceFault(self.device, messages.watchdog_expired(
+                self.settings.port, stopped, watchdog_s, self.settings.gripper_id),
+                ReasonCode.WATCHDOG)
 
     def _goal_group(self, gripper: int | None) -> GroupSyncWriteLike:
         if gripper is None or self.settings.gripper_id is None:
@@ -263,6 +330,13 @@ class DynamixelBus(BusTransactions):
             reader.addParam(dxl_id)
             torque.addParam(dxl_id, [0])  # only ever used to switch torque off
         self._reader, self._torque = reader, torque
+        self._watchdog_reader = StatusSyncRead(port, self._handler, tables.BUS_WATCHDOG.address,
+                                               tables.BUS_WATCHDOG.size)
+        self._watchdog_writer = make_sync_write(port, self._handler, tables.BUS_WATCHDOG.address,
+                                                tables.BUS_WATCHDOG.size)
+        for dxl_id in every:
+            self._watchdog_reader.addParam(dxl_id)
+            self._watchdog_writer.addParam(dxl_id, [0])  # replaced before sending
         # Two goal groups, so that a write without a gripper opening leaves its goal alone.
         self._goals = self._goal_writer(self.settings.ids)
         if self.settings.gripper_id is not None:
@@ -282,11 +356,12 @@ class DynamixelBus(BusTransactions):
 
     # ------------------------------------------------------------------ hot-path helpers
 
-    def _sync_read(self) -> None:
-        reader = self._require(self._reader)
+    def _sync_read(self, group: GroupSyncReadLike | None = None) -> None:
+        reader = self._require(group or self._reader)
         read = reader.fastSyncRead if self.uses_fast_sync_read else reader.txRxPacket
         attempts = self.settings.retries + 1
         for attempt in range(attempts):
+            self.last_sent_ns = time.monotonic_ns()
             result = read()
             self.counters.transactions += 1
             if result == COMM_SUCCESS:

@@ -7,8 +7,14 @@ thread-safe and its calls block (and spin) while they wait for a reply.
 - connect: open the port at ``baud``, ping every configured id (a missing one is named), check
   the model numbers, and pick Fast Sync Read when the servos answer it (else Sync Read).
 - configure: torque off, position mode.
-- activate: goals := present positions, then torque on. deactivate: hold, torque stays on (an
-  arm under gravity must not drop because streaming stopped). aclose: torque off, port closed.
+- activate: Bus Watchdog cleared (off, and out of a Bus Watchdog Error a previous run left),
+  goals := present positions, then torque on. deactivate: hold, Bus Watchdog off, torque stays
+  on (an arm under gravity must not drop because streaming stopped). aclose: torque off, port
+  closed.
+- Bus Watchdog (``watchdog_periods``): the first position setpoint after activation arms it
+  on every servo with one broadcast (the kernel's bring-up sends nothing for longer than a
+  watchdog between activation and its first tick); every packet feeds it; when it expires the
+  servos stop on their own, and the next read reports WATCHDOG.
 - read: one (fast) sync read of present current, velocity and position; the alert bit in any
   status packet turns into a DeviceFault that names the hardware error bits.
 - write: one sync write of goal positions, clipped to the joint limits and the one-turn range.
@@ -64,6 +70,7 @@ class DynamixelDriver:
                                           settings.gripper_closed_ticks, GRIPPER_MAX_OPENING_M)
         self._tick_lower, self._tick_upper = self.calibration.q_range(*POSITION_MODE_TICKS)
         self._lower, self._upper = self._tick_lower, self._tick_upper
+        self._watchdog_units = 0
         self._thread: DeviceThread | None = None
         self._bus: DynamixelBus | None = None
         self._seq = 0
@@ -102,13 +109,20 @@ class DynamixelDriver:
         if control.dof != len(self.settings.ids):
             raise DriverInitError(self.name, f"the control loop has {control.dof} joints but "
                                   f"`ids` lists {len(self.settings.ids)} servos; check `ids`")
+        try:
+            self._watchdog_units = self.settings.watchdog_units(control.period_ns * 1e-9)
+        except ValueError as error:
+            raise DriverInitError(self.name, f"{self.settings.port}: {error}") from error
         bus = self._connected_bus()
         await self._run(bus.prepare_position_mode)
         self._lower = tuple(map(max, control.q_lower, self._tick_lower))
         self._upper = tuple(map(min, control.q_upper, self._tick_upper))
 
     async def activate(self) -> None:
-        await self._run(self._connected_bus().enable_torque_holding)
+        bus = self._connected_bus()
+        if self._watchdog_units:
+            await self._run(bus.clear_watchdogs)
+        await self._run(bus.enable_torque_holding)
 
     async def read(self) -> StateSample:
         raw = await self._run(self._connected_bus().read_state)
@@ -133,6 +147,8 @@ class DynamixelDriver:
     async def deactivate(self) -> None:
         if self._bus is not None:
             await self.hold()
+            if self._watchdog_units:
+                await self._run(self._bus.clear_watchdogs)
 
     async def aclose(self) -> None:
         """Torque off and close the port. Safe to call twice; releases even when a step fails."""
@@ -158,7 +174,10 @@ class DynamixelDriver:
         q = tuple(min(max(v, lo), hi)
                   for v, lo, hi in zip(command.q, self._lower, self._upper, strict=True))
         ticks = self._ticks_in_range(q)
-        await self._run(self._connected_bus().write_goals, ticks, self._gripper_tick(command))
+        bus = self._connected_bus()
+        if self._watchdog_units and not bus.watchdog_units:  # the first setpoint arms it
+            await self._run(bus.arm_watchdogs, self._watchdog_units)
+        await self._run(bus.write_goals, ticks, self._gripper_tick(command))
         # ``q`` is what was sent before rounding to whole ticks (at most half a tick, 0.77 mrad).
         return Applied(kind=command.kind, t_mono_ns=time.monotonic_ns(), q=q)
 

@@ -58,3 +58,18 @@ def hardware_error(port: str, statuses: dict[int, int | None],
             parts.append(f"{servo}: {names} (Hardware Error Status 0x{status:02x})")
     return (f"hardware error on {port}: {'; '.join(parts)}; the servo switches its torque off: "
             "remove the cause, then reboot or power-cycle it")
+
+
+def watchdog_expired(port: str, stopped: Iterable[int], watchdog_s: float,
+                     gripper_id: int | None = None) -> str:
+    return (f"servo id {ids_text(stopped, gripper_id)} on {port} stopped: Bus Watchdog expired "
+            f"(no instruction packet for more than {watchdog_s * 1e3:.0f} ms while torque was "
+            "on: warden stalled or the bus went quiet); they refuse new goals until the driver "
+            "is brought up again, which clears it")
+
+
+def watchdog_unsupported(port: str, dxl_id: int, error: str,
+                         gripper_id: int | None = None) -> str:
+    return (f"servo id {ids_text([dxl_id], gripper_id)} on {port} refused its Bus Watchdog "
+            f"(address 98): {error}; it needs firmware v38 or later (update it with Dynamixel "
+            "Wizard), or set watchdog_periods = 0 to run without a device-side watchdog")

@@ -5,7 +5,12 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from drivers.dynamixel.tables import GOAL_CURRENT_MAX_UNITS, POSITION_MODE_TICKS
+from drivers.dynamixel.tables import (
+    BUS_WATCHDOG_MAX_UNITS,
+    BUS_WATCHDOG_UNIT_S,
+    GOAL_CURRENT_MAX_UNITS,
+    POSITION_MODE_TICKS,
+)
 
 SIX_SERVO_ARM_IDS = (1, 2, 3, 4, 5, 6)
 GRIPPER_MAX_OPENING_M = 0.085
@@ -53,6 +58,13 @@ class DynamixelSettings:
     (an XM430 at 300 mA squeezes with roughly a quarter of its stall torque). Set it for the
     part: too little lets it slip, too much crushes it or trips the overload alert."""
 
+    watchdog_periods: int = 10
+    """Bus Watchdog (98) of every servo: they stop (and refuse goals until re-activated) when no
+    instruction packet reaches them for this many control periods. Rounded up to the servo's
+    20 ms unit, and never shorter than one retried packet (``latency_budget_ms`` plus a period),
+    so that one lost reply cannot stop the arm: 120 ms at 125 Hz with a 100 ms budget. Armed by
+    the first setpoint after activation, disabled on deactivate; 0 switches it off."""
+
     def __post_init__(self) -> None:
         if not self.port:
             raise ValueError("port: empty; name the serial device of the U2D2/adapter")
@@ -67,6 +79,9 @@ class DynamixelSettings:
             raise ValueError(f"directions: each must be 1 or -1, got {list(self.directions)}")
         if self.retries < 0:
             raise ValueError(f"retries: must be >= 0, got {self.retries}")
+        if self.watchdog_periods < 0:
+            raise ValueError(f"watchdog_periods: must be >= 0 (0 switches the Bus Watchdog "
+                             f"off), got {self.watchdog_periods}")
         for key in ("latency_budget_ms", "call_timeout_s", "current_unit_ma",
                     "torque_per_amp_nm"):
             if not getattr(self, key) > 0:
@@ -77,6 +92,23 @@ class DynamixelSettings:
     def gripper_current_units(self) -> int:
         """``gripper_current_ma`` in Goal Current units (``current_unit_ma`` each)."""
         return round(self.gripper_current_ma / self.current_unit_ma)
+
+    def watchdog_units(self, period_s: float) -> int:
+        """Bus Watchdog value for this control period (0: off; see ``watchdog_periods``).
+
+        Raises:
+            ValueError: it would exceed the servo's 127 units (2.54 s).
+        """
+        if self.watchdog_periods == 0:
+            return 0
+        seconds = max(self.watchdog_periods * period_s, self.latency_budget_ms / 1e3 + period_s)
+        units = math.ceil(seconds / BUS_WATCHDOG_UNIT_S - 1e-9)
+        if units > BUS_WATCHDOG_MAX_UNITS:
+            raise ValueError(
+                f"watchdog_periods: {self.watchdog_periods} periods of {period_s * 1e3:g} ms "
+                f"(or one retried packet) is {seconds:.3f} s, more than the Bus Watchdog's "
+                f"{BUS_WATCHDOG_MAX_UNITS * BUS_WATCHDOG_UNIT_S:.2f} s; lower it")
+        return units
 
     @property
     def all_ids(self) -> tuple[int, ...]:

@@ -27,6 +27,13 @@ MAX_POSITION_LIMIT = Register("Max Position Limit", 48, 4)
 MIN_POSITION_LIMIT = Register("Min Position Limit", 52, 4)
 TORQUE_ENABLE = Register("Torque Enable", 64, 1)
 HARDWARE_ERROR_STATUS = Register("Hardware Error Status", 70, 1)
+BUS_WATCHDOG = Register("Bus Watchdog", 98, 1, signed=True)
+"""0: off (writing 0 also clears a Bus Watchdog Error); 1..127: armed, in BUS_WATCHDOG_UNIT_S;
+-1: expired, the servo stopped and refuses goal values (Data Range Error) until 0 is written.
+Counts only while Torque Enable is 1; every instruction packet feeds it. Firmware v38 on."""
+BUS_WATCHDOG_UNIT_S = 0.020
+BUS_WATCHDOG_MAX_UNITS = 127
+BUS_WATCHDOG_ERROR = -1
 GOAL_CURRENT = Register("Goal Current", 102, 2, signed=True)
 GOAL_CURRENT_MAX_UNITS = 2047
 """The largest Current Limit of the X series (XM540); each servo refuses a Goal Current above

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import termios
+import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from typing import TypeVar
@@ -55,12 +56,15 @@ class BusTransactions:
         self.counters = BusCounters()
         self._handler = make_packet_handler()
         self._port: TunedPortHandler | None = None
+        self.last_sent_ns = 0
+        """When the last instruction packet went out (what the servos' Bus Watchdog counts)."""
 
     # ------------------------------------------------------------------ transactions
 
     def _with_retries(self, call: SdkCall) -> tuple[int, int, int]:
         attempts = self.settings.retries + 1
         for attempt in range(attempts):
+            self.last_sent_ns = time.monotonic_ns()
             value, result, error = call()
             self.counters.transactions += 1
             if result not in RETRYABLE:

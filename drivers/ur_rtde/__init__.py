@@ -3,6 +3,7 @@
 ``URRTDEDriver`` (driver.py) implements the warden driver hooks; ``URSettings`` (settings.py) is
 its manifest table; ``tables.py`` holds the controller's status words and what they mean;
 ``gripper.py`` is the tool-output gripper's wiring; ``link.py`` is the only code that touches
-ur_rtde objects; ``probe.py`` checks a controller in plain sockets before the library (whose
-constructors hold the GIL) is let near it.
+ur_rtde objects; ``watchdog.py`` is the controller-side RTDE watchdog (what ur_rtde does, how
+the link arms, feeds, lengthens and removes it); ``probe.py`` checks a controller in plain
+sockets before the library (whose constructors hold the GIL) is let near it.
 """

@@ -88,6 +88,10 @@ class ControlInterface(Protocol):
 
     def speedStop(self, a: float) -> bool: ...
 
+    def setWatchdog(self, min_frequency: float) -> bool: ...
+
+    def kickWatchdog(self) -> bool: ...
+
 
 class IOInterface(Protocol):
     """``rtde_io.RTDEIOInterface`` (16 input recipes; writes only, fire-and-forget)."""

@@ -8,6 +8,13 @@ protective/safeguard stop → CONTROLLER_FAULT), robot mode and runtime state wh
 (→ LINK_LOST). All library calls run on this device's thread with a deadline; see ``_sdk``
 for why construction, destruction and blocking commands are handled with such care.
 
+The controller-side RTDE watchdog (``watchdog_periods``, see ``watchdog``) stops the arm when
+warden dies or hangs: the first motion setpoint after activation arms it (the kernel's bring-up
+sends nothing for longer than a watchdog between activation and its first tick, and an arm that
+was never given a setpoint has nothing to stop), every setpoint feeds it, a write cycle that
+sends none kicks it, deactivate removes it. A control script that stops while it is armed is
+reported as WATCHDOG.
+
 With ``gripper_output`` set, a binary two-finger gripper on a tool digital output follows
 ``Command.gripper`` of POSITION and VELOCITY commands (see ``gripper``): its output is written
 through ur_rtde's IO interface only when the commanded state changes, HOLD and STOP leave it as
@@ -57,6 +64,7 @@ class URRTDEDriver:
         self._thread: DeviceThread | None = None
         self._link: Link | None = None
         self._control: ControlConfig | None = None
+        self._watchdog_hz: float | None = None
         self._active = False
         self._seq = 0
 
@@ -108,6 +116,7 @@ class URRTDEDriver:
                 f"the RTDE period of the arm at {host} ({self.settings.frequency_hz} Hz): "
                 "raise frequency_hz or lower the control rate")
         self._control = control
+        self._watchdog_hz = self.settings.watchdog_frequency_hz(control.period_ns * 1e-9)
 
     async def activate(self) -> None:
         """Check the arm can follow setpoints; restart the control script if it had stopped."""
@@ -130,7 +139,7 @@ class URRTDEDriver:
     async def write(self, command: Command) -> Applied:
         moves = command.kind in (CommandKind.POSITION, CommandKind.VELOCITY)
         if moves and command.gripper is not None and not math.isfinite(command.gripper):
-            return _refused(command.kind, ReasonCode.NONFINITE)
+            return await self._refused_and_kicked(command.kind)
         applied = await self._move(command)
         if moves and applied.accepted:  # HOLD and STOP leave the gripper as it is
             await self._grip(command.gripper)
@@ -140,14 +149,18 @@ class URRTDEDriver:
         link = self._link_or_raise()
         if command.kind is CommandKind.POSITION:
             if not _well_formed(command.q):
-                return _refused(command.kind, ReasonCode.NONFINITE)
+                return await self._refused_and_kicked(command.kind)
+            if self._watchdog_hz is not None and not link.watchdog.armed:
+                await self._arm_watchdog(link, self._watchdog_hz)
             q = self._clip_position(command.q)
             dt = max(self._period_s(), tables.CONTROLLER_CYCLE_S)
             return await self._applied(command.kind, lambda: link.servo_j(q, dt), q=q,
                                        timeout_s=self._setpoint_timeout(link, Mode.SERVO))
         if command.kind is CommandKind.VELOCITY:
             if not _well_formed(command.qd):
-                return _refused(command.kind, ReasonCode.NONFINITE)
+                return await self._refused_and_kicked(command.kind)
+            if self._watchdog_hz is not None and not link.watchdog.armed:
+                await self._arm_watchdog(link, self._watchdog_hz)
             qd = self._clip_velocity(command.qd)
             return await self._applied(command.kind, lambda: link.speed_j(qd), qd=qd,
                                        timeout_s=self._setpoint_timeout(link, Mode.SPEED))
@@ -167,10 +180,12 @@ class URRTDEDriver:
         return Applied(kind=CommandKind.HOLD, t_mono_ns=time.monotonic_ns(), q=q)
 
     async def deactivate(self) -> None:
-        """End servo or speed mode (the arm decelerates and stays powered)."""
+        """End servo or speed mode (the arm decelerates and stays powered), then remove the
+        watchdog: that stops the control script; the next activation uploads it again."""
         self._active = False
-        await self._run(self._link_or_raise().end_streaming,
-                        timeout_s=self.settings.stop_timeout_s)
+        link = self._link_or_raise()
+        await self._run(link.end_streaming, timeout_s=self.settings.stop_timeout_s)
+        await self._run(link.disarm_watchdog, timeout_s=self.settings.stop_timeout_s)
 
     async def aclose(self) -> None:
         """Stop the script if the link is healthy, release both interfaces. Safe to call twice."""
@@ -216,10 +231,26 @@ class URRTDEDriver:
         if link.gripper_needs_write(closed):
             await self._run(link.set_gripper, closed)
 
+    async def _arm_watchdog(self, link: Link, frequency_hz: float) -> None:
+        """Once per activation, with the first motion setpoint (one blocking round trip)."""
+        if not await self._run(link.arm_watchdog, frequency_hz,
+                               timeout_s=self.settings.stop_timeout_s):
+            await self._read_checked(streaming=True)  # the status words say why, if they can
+            raise DeviceFault(self.name, f"the control script on the arm at "
+                              f"{self.settings.host} did not confirm setWatchdog("
+                              f"{frequency_hz:g} Hz)", ReasonCode.CONTROLLER_REJECT)
+
+    async def _refused_and_kicked(self, kind: CommandKind) -> Applied:
+        """A setpoint refused before it reached the library: nothing went out, so kick the
+        watchdog (warden is alive; what to do about bad setpoints is the kernel's call)."""
+        await self._run(self._link_or_raise().kick_watchdog)
+        return _refused(kind, ReasonCode.NONFINITE)
+
     async def _read_checked(self, streaming: bool) -> Snapshot:
-        snapshot = await self._run(self._link_or_raise().snapshot)
+        link = self._link_or_raise()
+        snapshot = await self._run(link.snapshot)
         faults = tables.device_faults(snapshot.safety_bits, snapshot.robot_mode,
-                                      snapshot.runtime_state, streaming)
+                                      snapshot.runtime_state, streaming, link.watchdog.timeout_s)
         if faults:
             detail = "; ".join(fault.detail for fault in faults)
             raise DeviceFault(self.name, f"arm at {self.settings.host}: {detail}",

@@ -1,7 +1,8 @@
 """Everything that touches ur_rtde objects. Runs only on the device thread, one call at a time.
 
 The link owns the receive and control interfaces (and the IO interface when the arm has a
-gripper), the streaming mode (servo, speed or none) and the freshness of the data stream.
+gripper), the streaming mode (servo, speed or none), the control script's RTDE watchdog
+(:mod:`drivers.ur_rtde.watchdog`) and the freshness of the data stream.
 Blocking commands are sent only after the stream proved fresh: on a dead or stalled link
 ur_rtde would wait up to 300 s for a "done" that never comes, and a thread stuck there cannot
 even be joined at exit.
@@ -21,6 +22,7 @@ from drivers.base import DeviceFault, DriverInitError
 from drivers.ur_rtde import _sdk, tables
 from drivers.ur_rtde.gripper import GripperWiring
 from drivers.ur_rtde.settings import URSettings
+from drivers.ur_rtde.watchdog import ControlWatchdog
 
 SCRIPT_START_TIMEOUT_S = 1.0
 POLL_S = 0.0005
@@ -76,6 +78,7 @@ class Link:
         """That output as the controller reports it, from the newest snapshot."""
         self._gripper_written_ns = self._gripper_read_ns = 0
         self.mode = Mode.IDLE
+        self.watchdog = ControlWatchdog(device, settings.host, settings.stop_timeout_s)
         self._last_timestamp = -1.0
         self._last_change_ns = 0
 
@@ -98,6 +101,8 @@ class Link:
             raise DriverInitError(self.device, f"ur_rtde could not connect to the arm at {host}: "
                                   f"{error}") from error
         self.mode = Mode.IDLE
+        self.watchdog.forget()  # constructing or reconnecting the control interface uploads
+        # the script afresh (stopping one that ran): no watchdog yet
         self.gripper_closed = None  # whatever was written before, the controller may differ
         self.gripper_output_high = None
         self._last_change_ns = time.monotonic_ns()
@@ -156,6 +161,7 @@ class Link:
         healthy = self._fresh()
         control, receive, io = self.control, self.receive, self.io
         self.control, self.receive, self.io = None, None, None
+        self.watchdog.forget()  # stopScript below ends the script, a lost link ended it already
         if io is not None:  # first: its disconnect waits for an answer, and "healthy" is now
             release_io(io, healthy)
         if control is not None:
@@ -223,16 +229,43 @@ class Link:
     def end_streaming(self) -> None:
         """servoStop / speedStop: the script leaves its servo or speed thread and decelerates."""
         control = self._require_fresh()
+        if self.mode is not Mode.IDLE:
+            with self.watchdog.lengthened(control):  # both return once the arm is at rest
+                self._leave_mode(control)
+
+    def stop(self) -> None:
+        """Leave any streaming mode, then stopJ (synchronous: returns once decelerated)."""
+        control = self._require_fresh()
+        if self.mode is Mode.IDLE:  # at rest already: stopJ returns within a cycle or two
+            control.stopJ(self.settings.stop_deceleration, False)
+            return
+        with self.watchdog.lengthened(control):
+            self._leave_mode(control)
+            control.stopJ(self.settings.stop_deceleration, False)
+
+    def _leave_mode(self, control: _sdk.ControlInterface) -> None:
         if self.mode is Mode.SERVO:
             control.servoStop(self.settings.servo_stop_deceleration)
         elif self.mode is Mode.SPEED:
             control.speedStop(self.settings.stop_deceleration)
         self.mode = Mode.IDLE
 
-    def stop(self) -> None:
-        """Leave any streaming mode, then stopJ (synchronous: returns once decelerated)."""
-        self.end_streaming()
-        self._require_fresh().stopJ(self.settings.stop_deceleration, False)
+    def arm_watchdog(self, frequency_hz: float) -> bool:
+        """setWatchdog: from now on the controller stops the script if the commands stop.
+        False: the script did not confirm it (the status words say why)."""
+        return self.watchdog.arm(self._require_fresh(), frequency_hz)
+
+    def kick_watchdog(self) -> None:
+        """For a write cycle that sends no setpoint (a setpoint is itself a kick; a kick right
+        after one can hide it from the script, see ``watchdog``)."""
+        control = self._require_control()
+        if self.watchdog.armed:
+            self._guarded(control.kickWatchdog)  # fire-and-forget: no answer to wait for
+
+    def disarm_watchdog(self) -> None:
+        """Stop the control script if a watchdog is armed (the only way to remove it)."""
+        if self.watchdog.armed:
+            self.watchdog.disarm(self._require_fresh())
 
     def set_gripper(self, closed: bool) -> None:
         """Switch the gripper's tool output (high = closed).
@@ -264,6 +297,7 @@ class Link:
     def restart_script(self) -> None:
         """Upload rtde_control again (after a cleared safety stop the old one has ended)."""
         control = self._require_fresh()
+        self.watchdog.forget()  # the new script starts without one
         control.reuploadScript()
         deadline = time.monotonic() + SCRIPT_START_TIMEOUT_S
         # Both sessions must have seen it: each gets its own packages, a few ms apart.
@@ -315,6 +349,7 @@ class Link:
     def _require_fresh(self) -> _sdk.ControlInterface:
         control = self._require_control()
         if not self._fresh():
+            self._require_connected()  # a session that closed during the wait: LinkDown
             raise LinkStalled("no new RTDE data: not sending a command that waits for the arm")
         return control
 

@@ -113,11 +113,14 @@ def _set_bits(word: int, bits: tuple[SafetyBit, ...]) -> list[str]:
 
 
 def device_faults(safety_bits: int, robot_mode: int, runtime_state: int,
-                  streaming: bool) -> list[Fault]:
+                  streaming: bool, watchdog_s: float | None = None) -> list[Fault]:
     """What the status words say is wrong, most severe first.
 
     Safety stops always count. Robot mode and program state count only while streaming:
-    an idle, connected arm with no program running is not at fault.
+    an idle, connected arm with no program running is not at fault. ``watchdog_s``: the RTDE
+    watchdog the driver armed (None: not armed); a control script that stopped with it armed
+    and no safety stop was most likely stopped by it (WATCHDOG): the status words look the same
+    after a "stop" from the dashboard, which the driver never sends while streaming.
     """
     faults: list[Fault] = []
     if e_stops := _set_bits(safety_bits, E_STOP_BITS):
@@ -128,11 +131,19 @@ def device_faults(safety_bits: int, robot_mode: int, runtime_state: int,
         mode = _name(RobotMode, robot_mode)
         faults.append(Fault(ReasonCode.CONTROLLER_FAULT, f"robot mode {mode}"))
     if streaming and runtime_state != RuntimeState.PLAYING:
-        faults.append(Fault(
-            ReasonCode.CONTROLLER_FAULT,
-            f"control script not running (runtime state {_name(RuntimeState, runtime_state)})",
-        ))
+        faults.append(_script_stopped(runtime_state, watchdog_s if not faults else None))
     return faults
+
+
+def _script_stopped(runtime_state: int, watchdog_s: float | None) -> Fault:
+    state = _name(RuntimeState, runtime_state)
+    if watchdog_s is None or runtime_state != RuntimeState.STOPPED:
+        return Fault(ReasonCode.CONTROLLER_FAULT,
+                     f"control script not running (runtime state {state})")
+    return Fault(ReasonCode.WATCHDOG,
+                 f"the controller stopped the control script (runtime state {state}, no safety "
+                 f"stop) with the RTDE watchdog armed: no command reached it for more than "
+                 f"{watchdog_s * 1e3:.0f} ms; the arm was stopped by the controller")
 
 
 def _name(kind: type[IntEnum], value: int) -> str:

@@ -4,7 +4,9 @@ Run it as ``python -m stubs.dynamixel_bus --ids 1,2,3,4,5,6``: it prints
 ``READY {"port": "/dev/pts/N", "fault_port": P}`` once the pty answers. ``--gripper-id N``
 adds one more servo that drives the plant's gripper instead of a joint. The real
 ``dynamixel_sdk`` opens ``port`` like a U2D2 adapter. Faults are injected over ``fault_port``
-(:func:`stubs.fault_control.inject`): ``silent``, ``crc``, ``hardware_error``, ``clear``.
+(:func:`stubs.fault_control.inject`): ``silent``, ``crc``, ``hardware_error``, ``clear``;
+``peek`` reads one control-table item. Each servo runs its Bus Watchdog (98) as the e-Manual
+describes (``watchdog``).
 
 The codec here (``crc``, ``packet``) and the control table (``control_table``) are written from
 the Robotis e-Manual, independently of ``drivers.dynamixel``: an emulator that shared the

@@ -18,6 +18,7 @@ import signal
 import sys
 import termios
 import threading
+import time
 import tty
 
 from stubs.dynamixel_bus.bus import Bus
@@ -39,6 +40,8 @@ BAUD_CODES = {
     4_500_000: 7,
 }
 """Baud Rate (address 8) values of the X-series."""
+IDLE_POLL_S = 0.1
+"""How often an idle bus looks at the stop flag and its parent."""
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
@@ -118,15 +121,28 @@ class PtyServer:
         decoder = FrameDecoder()
         parent = os.getppid()
         while not self.stop.is_set() and os.getppid() == parent:
-            readable, _, _ = select.select([self.master], [], [], 0.1)
-            if not readable:
-                continue
-            data = os.read(self.master, 4096)
-            if self._line_baud() != self.baud:
-                decoder = FrameDecoder()  # at the wrong rate the servos only see noise
-                continue
-            for frame in decoder.feed(data):
-                self._answer(frame)
+            if self._input_within(self._until_next_watchdog()):
+                data = os.read(self.master, 4096)
+                if self._line_baud() != self.baud:
+                    decoder = FrameDecoder()  # at the wrong rate the servos only see noise
+                    continue
+                for frame in decoder.feed(data):
+                    self._answer(frame)
+            # Judged at an instant after which nothing was pending: the packets that were
+            # already in the pty buffer (after a stall of this process) reach the servos first.
+            now = time.monotonic()
+            if not self._input_within(0.0):
+                self.bus.check_watchdogs(now)
+
+    def _until_next_watchdog(self) -> float:
+        deadline = self.bus.next_watchdog_deadline()
+        if deadline is None:
+            return IDLE_POLL_S
+        return min(IDLE_POLL_S, max(0.0, deadline - time.monotonic()))
+
+    def _input_within(self, timeout_s: float) -> bool:
+        readable, _, _ = select.select([self.master], [], [], timeout_s)
+        return bool(readable)
 
     def _answer(self, frame: Frame) -> None:
         try:

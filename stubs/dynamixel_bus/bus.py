@@ -3,12 +3,16 @@
 Replies follow the e-Manual: a unicast instruction gets one status packet; sync read gets one
 status packet per listed servo, in the listed order; fast sync read gets one combined packet from
 the broadcast id; broadcast ping gets one per servo; sync write and other broadcasts get none.
-Each status packet carries the alert bit while its servo has a hardware error.
+Each status packet carries the alert bit while its servo has a hardware error. Every good
+instruction packet feeds the Bus Watchdog of the servos it addresses; ``check_watchdogs`` stops
+the servos whose watchdog expired (:mod:`stubs.dynamixel_bus.watchdog`).
 """
 
 from __future__ import annotations
 
+import sys
 import threading
+import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Any
@@ -24,6 +28,7 @@ from stubs.dynamixel_bus.packet import (
     encode_status,
 )
 from stubs.dynamixel_bus.plant_link import PlantLink
+from stubs.dynamixel_bus.watchdog import BusWatchdogClock
 
 Handler = Callable[[Frame], bytes]
 
@@ -44,6 +49,7 @@ class Bus:
         self.link = link
         self.faults = BusFaults()
         self.lock = threading.Lock()
+        self.watchdog = BusWatchdogClock(servos, time.monotonic())
         self._handlers: dict[int, Handler] = {
             Instruction.PING: self._ping,
             Instruction.READ: self._read,
@@ -64,10 +70,36 @@ class Bus:
         with self.lock:
             if not frame.crc_ok:
                 return self._unicast_error(frame, ErrorCode.CRC)
+            self.watchdog.heard(self._hearing(frame.servo_id), time.monotonic())
             handler = self._handlers.get(frame.instruction)
             if handler is None:
                 return self._unicast_error(frame, ErrorCode.INSTRUCTION)
             return handler(frame)
+
+    # ------------------------------------------------------------------ bus watchdog
+
+    def next_watchdog_deadline(self) -> float | None:
+        """time.monotonic() at which the first armed Bus Watchdog expires, or None."""
+        with self.lock:
+            return self.watchdog.deadline(self.servos)
+
+    def check_watchdogs(self, now: float) -> list[int]:
+        """Stop every servo whose Bus Watchdog expired by ``now``; returns their ids."""
+        with self.lock:
+            expired = self.watchdog.expired(self.servos, now)
+            if expired:
+                self.link.refresh(self.servos)  # they stop where they are now
+                for servo_id in expired:
+                    self.servos[servo_id].trip_watchdog()
+                self.link.halt(self.servos)
+        if expired:
+            print(f"dynamixel_bus: Bus Watchdog expired on ids {expired}: stopped",
+                  file=sys.stderr)
+        return expired
+
+    def _hearing(self, servo_id: int) -> list[int]:
+        ids = self.servos if servo_id == BROADCAST_ID else [servo_id]
+        return [i for i in ids if i in self.servos and i not in self.faults.silent]
 
     # ------------------------------------------------------------------ instructions
 
@@ -178,7 +210,16 @@ class Bus:
             "crc": self._inject_crc,
             "hardware_error": self._inject_hardware_error,
             "clear": self._clear,
+            "peek": self._peek,
         }
+
+    def _peek(self, request: dict[str, Any]) -> dict[str, Any]:
+        """Not a fault: one control-table item (``item``: its address, ``size`` in bytes) as
+        the servo holds it, signed (tests, no bus needed)."""
+        address, size = int(request["item"]), int(request.get("size", 1))
+        with self.lock:
+            value = self.servos[self._known_id(request)].get(address, size, signed=True)
+        return {"value": value}
 
     def _inject_silent(self, request: dict[str, Any]) -> None:
         with self.lock:
@@ -195,12 +236,14 @@ class Bus:
             self.link.apply(self.servos)
 
     def _clear(self, request: dict[str, Any]) -> None:
-        """Undo every fault, as a power cycle would: errors cleared, torque off."""
+        """Undo every fault, as a power cycle would: errors cleared, torque off, Bus Watchdog
+        off (RAM items restart at their defaults)."""
         with self.lock:
             self.faults = BusFaults()
             for servo in self.servos.values():
                 servo.clear_error()
                 servo.set(Addr.TORQUE_ENABLE, 1, 0)
+                servo.set(Addr.BUS_WATCHDOG, 1, 0)
             self._settle_goals()
             self.link.apply(self.servos)
 

@@ -2,7 +2,10 @@
 
 Only what a driver can observe is modelled: item addresses and sizes, which items are read-only,
 that the EEPROM area (addresses below 64) refuses writes while torque is on, that Goal Position
-must lie within the position limits, and that a hardware error switches torque off.
+must lie within the position limits, that a hardware error switches torque off, and the Bus
+Watchdog (98): 0 off (writing 0 also clears its error), 1..127 armed in 20 ms units, -1 after it
+expired, when the goal values (Goal PWM, Current, Velocity, Position) refuse writes with a Data
+Range Error until 0 is written (:mod:`stubs.dynamixel_bus.watchdog` times it).
 """
 
 from __future__ import annotations
@@ -39,7 +42,11 @@ class Addr(IntEnum):
     MIN_POSITION_LIMIT = 52
     TORQUE_ENABLE = 64
     HARDWARE_ERROR_STATUS = 70
+    BUS_WATCHDOG = 98
+    GOAL_PWM = 100
     GOAL_CURRENT = 102
+    GOAL_VELOCITY = 104
+    PROFILE_ACCELERATION = 108
     GOAL_POSITION = 116
     MOVING = 122
     PRESENT_CURRENT = 126
@@ -79,6 +86,7 @@ ITEMS: tuple[Item, ...] = (
     Item(80, 2, True),  # Position D Gain
     Item(82, 2, True),  # Position I Gain
     Item(84, 2, True, 800),  # Position P Gain
+    Item(98, 1, True),  # Bus Watchdog (20 ms units, signed: -1 is Bus Watchdog Error)
     Item(100, 2, True),  # Goal PWM
     Item(102, 2, True),  # Goal Current
     Item(104, 4, True),  # Goal Velocity
@@ -110,6 +118,11 @@ class HardwareError(IntFlag):
 
 
 OPERATING_MODES = frozenset({0, 1, 3, 4, 5, 16})
+BUS_WATCHDOG_MAX_UNITS = 127
+BUS_WATCHDOG_ERROR = -1
+GOAL_VALUES = ((Addr.GOAL_PWM, Addr.PROFILE_ACCELERATION), (Addr.GOAL_POSITION, 120))
+"""Byte ranges of Goal PWM, Current and Velocity (100-107) and Goal Position (116-119): read-only
+while the Bus Watchdog is in error (the profile items between them are not goal values)."""
 
 
 def _writable_map() -> bytes:
@@ -149,6 +162,23 @@ class ServoTable:
     def hardware_error(self) -> int:
         return self.memory[Addr.HARDWARE_ERROR_STATUS]
 
+    @property
+    def bus_watchdog(self) -> int:
+        """Bus Watchdog (98): 0 off, 1..127 armed (20 ms units), -1 expired."""
+        return self.get(Addr.BUS_WATCHDOG, 1, signed=True)
+
+    @property
+    def watchdog_error(self) -> bool:
+        return self.bus_watchdog == BUS_WATCHDOG_ERROR
+
+    def trip_watchdog(self) -> None:
+        """The Bus Watchdog expired: the servo stops where it is (call with Present Position
+        fresh). The manual says it stops and its goal values turn read-only; that Goal Position
+        then reads the stop position is this emulator's choice (the manual does not say)."""
+        self.set(Addr.BUS_WATCHDOG, 1, BUS_WATCHDOG_ERROR)
+        self.set(Addr.GOAL_POSITION, 4, self.get(Addr.PRESENT_POSITION, 4, signed=True))
+        self.set(Addr.GOAL_VELOCITY, 4, 0)
+
     def alert(self) -> int:
         """The error-byte alert bit this servo puts in every status packet."""
         return 0x80 if self.hardware_error else 0
@@ -182,6 +212,9 @@ class ServoTable:
             return ErrorCode.ACCESS
         if address < EEPROM_END and self.torque_enabled:
             return ErrorCode.ACCESS  # EEPROM is locked while torque is on
+        if self.watchdog_error and any(_overlaps(address, end, low, high)
+                                       for low, high in GOAL_VALUES):
+            return ErrorCode.DATA_RANGE  # goal values are read-only until 98 is cleared
         if self.hardware_error and _touches(address, end, Addr.TORQUE_ENABLE, 1) and data[
             Addr.TORQUE_ENABLE - address
         ]:
@@ -192,6 +225,11 @@ class ServoTable:
         mode_written = _touches(address, address + len(data), Addr.OPERATING_MODE, 1)
         if mode_written and data[Addr.OPERATING_MODE - address] not in OPERATING_MODES:
             return ErrorCode.DATA_RANGE
+        if _touches(address, address + len(data), Addr.BUS_WATCHDOG, 1):
+            units = int.from_bytes(data[Addr.BUS_WATCHDOG - address:][:1], "little", signed=True)
+            # In error only 0 (clear) is taken: the manual names no other way out of it.
+            if not 0 <= units <= BUS_WATCHDOG_MAX_UNITS or (self.watchdog_error and units):
+                return ErrorCode.DATA_RANGE
         if _touches(address, address + len(data), Addr.GOAL_CURRENT, 2):
             offset = Addr.GOAL_CURRENT - address
             goal = int.from_bytes(data[offset:offset + 2], "little", signed=True)
@@ -216,3 +254,8 @@ class ServoTable:
 def _touches(start: int, end: int, address: int, size: int) -> bool:
     """Whether the write [start, end) covers the whole item at ``address``."""
     return start <= address and address + size <= end
+
+
+def _overlaps(start: int, end: int, low: int, high: int) -> bool:
+    """Whether the write [start, end) touches any byte of [low, high)."""
+    return start < high and low < end

@@ -108,6 +108,17 @@ class PlantLink:
                 self.stepper.plant.hold()
             self._apply_gripper(servos)
 
+    def halt(self, servos: Mapping[int, ServoTable]) -> None:
+        """Servos stopped by their Bus Watchdog: with every joint stopped the plant holds where
+        it is (dropping the velocity it estimated from the goal stream); otherwise the stopped
+        ones go to their goal, which is where they stopped."""
+        if not all(servos[servo_id].watchdog_error for servo_id in self.ids):
+            self.apply(servos)
+            return
+        with self.stepper.lock:
+            self.stepper.plant.hold()
+            self._apply_gripper(servos)
+
     def _apply_gripper(self, servos: Mapping[int, ServoTable]) -> None:
         """A torque-on gripper goes to its goal; repeating the same opening costs the plant
         nothing, so every write may resend it. Torque off: the fingers stay where they are."""

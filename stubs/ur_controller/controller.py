@@ -1,11 +1,13 @@
 """The emulated UR controller: one control cycle at 500 Hz over a plant, three servers, faults.
 
-Each cycle runs the uploaded control script once (its ``sync()``), lets the gripper follow its
-tool output (:mod:`~stubs.ur_controller.io_board`), takes one :class:`Frame`, and sends every
-started RTDE session its data package. The plant steps inside that cycle, as the arm follows
-a real controller's servo loop: a free-running stepper thread beside it aliased against the
-client's 500 Hz stream (two setpoints in one physics step, none in the next), and the plant's
-velocity feed-forward turned that into jerks of tens of newtons at the wrist.
+Each cycle checks the RTDE watchdogs the script armed (a silent client stops the program, see
+:mod:`stubs.ur_controller.watchdog`), runs the uploaded control script once (its ``sync()``),
+lets the gripper follow its tool output (:mod:`~stubs.ur_controller.io_board`), takes one
+:class:`Frame`, and sends every started RTDE session its data package. The plant steps inside
+that cycle, as the arm follows a real controller's servo loop: a free-running stepper thread
+beside it aliased against the client's 500 Hz stream (two setpoints in one physics step, none in
+the next), and the plant's velocity feed-forward turned that into jerks of tens of newtons at
+the wrist.
 Lock order: controller lock, then the plant lock.
 """
 
@@ -34,6 +36,7 @@ from stubs.ur_controller.status import (
     SafetyBit,
     SafetyMode,
 )
+from stubs.ur_controller.watchdog import InputWatchdog, RTDEWatchdogs
 
 RTDE_PORT, DASHBOARD_PORT, SCRIPT_PORT = 30004, 29999, 30003
 CB3_MAJOR = 3
@@ -63,13 +66,14 @@ class URController:
         self.plant_lock = threading.Lock()
         """Held for every plant access (the cycle, the world port of the cell's evaluator)."""
         self._steps_per_cycle = max(1, round(1e9 / config.cycle_hz / plant.timestep_ns))
+        self.watchdogs = RTDEWatchdogs(1.0 / config.cycle_hz)
         self.script = ControlScript(self.status, self.registers, plant,
-                                    1.0 / config.cycle_hz)
+                                    1.0 / config.cycle_hz, self.watchdogs)
         self.stalled = False
         self._sessions: set[RTDESession] = set()
         self._sessions_lock = threading.Lock()
         self._context = ServerContext(config.version, config.cycle_hz, self.registers, self.lock,
-                                      self.io)
+                                      self.io, self.watchdogs)
         self._stop = threading.Event()
         self._boot = time.monotonic()
         self._cycle_thread = threading.Thread(target=self._run, name="cycle", daemon=True)
@@ -135,6 +139,7 @@ class URController:
             "speed_scaling": lambda request: self._set_speed_scaling(float(request["value"])),
             "clear": lambda _: self._clear(),
             "io_state": lambda _: self._io_state(),
+            "status": lambda _: self._status(),
             "lose_io_write": lambda request: self._lose_io_writes(int(request.get("count", 1))),
         }
 
@@ -148,6 +153,15 @@ class URController:
             return {"digital_output_bits": self.io.digital_output_bits,
                     "gripper_m": self.plant.state().gripper,
                     "output_packages": dict(self.io.packages)}
+
+    def _status(self) -> dict[str, object]:
+        """Not a fault: the status words and the armed RTDE watchdogs (tests, no RTDE needed)."""
+        with self.lock:
+            status = self.status
+            return {"robot_mode": int(status.robot_mode), "safety_bits": status.safety_bits,
+                    "runtime_state": int(status.runtime_state),
+                    "robot_status_bits": status.robot_status_bits,
+                    "watchdogs": self.watchdogs.snapshot()}
 
     def _safety_stop(self, mode: SafetyMode, bits: tuple[SafetyBit, ...]) -> None:
         # As on the real controller: the program leaves PLAYING, so ur_rtde's commands fail.
@@ -207,11 +221,22 @@ class URController:
     def _cycle(self) -> Frame:
         started = time.perf_counter()
         with self._locked():
+            expired = self.watchdogs.expired()
+            if expired is not None:
+                self._watchdog_stop(expired)
             self.script.step()
             self.io.drive_gripper(self.plant)
             self.plant.step(self._steps_per_cycle)
             return take_frame(time.monotonic() - self._boot, self.plant.state(), self.status,
                               self.registers, self.io, time.perf_counter() - started)
+
+    def _watchdog_stop(self, watchdog: InputWatchdog) -> None:
+        """rtde_set_watchdog's "stop": the program stops as if stopped from the dashboard."""
+        silent_ms = watchdog.silent_cycles * self.watchdogs.cycle_s * 1e3
+        print(f"ur_controller: no update of {watchdog.variable} for {silent_ms:.0f} ms (watchdog "
+              f"at {watchdog.min_frequency_hz:g} Hz): program stopped", file=sys.stderr)
+        self.watchdogs.fired += 1
+        self.script.stop()
 
     def _publish(self, frame: Frame, cycle: int) -> None:
         with self._sessions_lock:

@@ -34,6 +34,7 @@ from stubs.ur_controller.ur_types import (
     recipe_struct,
     unflatten,
 )
+from stubs.ur_controller.watchdog import RTDEWatchdogs
 
 HEADER = struct.Struct(">HB")
 PROTOCOL_VERSION = 2
@@ -80,6 +81,7 @@ class ServerContext:
     registers: RegisterBank
     lock: threading.Lock
     io: IOBoard
+    watchdogs: RTDEWatchdogs
 
     @property
     def short_version(self) -> Version:
@@ -227,6 +229,7 @@ class RTDESession:
         values = unflatten(recipe.types, recipe.unpacker.unpack(payload[1:]))
         with self.context.lock:
             self.context.registers.write(recipe.names, values)
+            self.context.watchdogs.saw(recipe.names)
             self.context.io.apply(recipe.names, values)
 
     def _send(self, kind: int, payload: bytes) -> None:

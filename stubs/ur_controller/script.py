@@ -7,7 +7,9 @@ registers. We do not interpret URScript; we run the same state machine that prog
 - ``output_int_register_0`` = 1 "ready", 2 "done with command";
 - ``input_int_register_0`` = the command id; 0 means "idle, ready for the next one";
 - real-time commands (servoJ 11, speedJ 9, ...) are processed every cycle and answer "ready";
-- every other command is processed once, answers "done", and waits for the client to write 0.
+- every other command is processed once, answers "done", and waits for the client to write 0;
+- ``setWatchdog`` (35) arms the controller's RTDE watchdog on the command register with action
+  "stop" (:mod:`stubs.ur_controller.watchdog`); stopping the program removes it.
 
 Registers are offset by 24 when the client asked for the upper range; the offset is read from
 the uploaded program text, where ur_rtde injects it.
@@ -15,6 +17,7 @@ the uploaded program text, where ur_rtde injects it.
 
 from __future__ import annotations
 
+import math
 import re
 import sys
 from collections.abc import Callable
@@ -22,11 +25,12 @@ from dataclasses import dataclass
 
 from stubs.plant.base import Plant
 from stubs.ur_controller.status import ControllerStatus, RegisterBank, RuntimeState
+from stubs.ur_controller.watchdog import RTDEWatchdogs
 
 # The command ids of rtde_control.script (ur_rtde 1.6.5, "RTDE Control Script Loaded
 # (14.02.2024-12:23)").
 MOVEJ, SPEEDJ, SERVOJ = 1, 9, 11
-SPEED_STOP, SERVO_STOP, STOPL, STOPJ, STOP_SCRIPT = 15, 16, 33, 34, 255
+SPEED_STOP, SERVO_STOP, STOPL, STOPJ, SET_WATCHDOG, STOP_SCRIPT = 15, 16, 33, 34, 35, 255
 REALTIME_COMMANDS = frozenset({24, 11, 9, 10, 6, 25, 26, 27, 38, 58, 66, 67, 68, 69, 70, 71})
 READY, DONE = 1, 2
 ARRIVED_RAD = 1e-3
@@ -50,11 +54,12 @@ class ControlScript:
     """One running instance of ``rtde_control``; ``step`` is one ``sync()`` of its main loop."""
 
     def __init__(self, status: ControllerStatus, registers: RegisterBank, plant: Plant,
-                 cycle_s: float = 0.002) -> None:
+                 cycle_s: float = 0.002, watchdogs: RTDEWatchdogs | None = None) -> None:
         self.status = status
         self.cycle_s = cycle_s
         self.registers = registers
         self.plant = plant
+        self.watchdogs = watchdogs or RTDEWatchdogs(cycle_s)
         self.offsets = Offsets()
         self._executing = False
         self._blocking_until: Callable[[], bool] | None = None
@@ -69,12 +74,14 @@ class ControlScript:
             SERVO_STOP: self.plant.hold,
             STOPL: self.plant.hold,
             STOPJ: self.plant.hold,
+            SET_WATCHDOG: self._set_watchdog,
             STOP_SCRIPT: self.stop,
         }
 
     def load(self, program: str) -> None:
         """A new program replaces the running one and starts PLAYING (as on the controller)."""
         self.offsets = parse_offsets(program)
+        self.watchdogs.clear()  # the program it replaces has ended, and its watchdogs with it
         self._servo_window = None
         self._executing = False
         self._blocking_until = None
@@ -83,8 +90,13 @@ class ControlScript:
         self._write_out(0, READY)
 
     def stop(self) -> None:
-        """The program ends (stop script, dashboard "stop", or a safety stop)."""
+        """The program ends (stop script, dashboard "stop", a safety stop, an RTDE watchdog).
+
+        The arm stays powered and the safety system is not involved: robot mode RUNNING, safety
+        NORMAL, runtime state STOPPED. The plant holds the measured position at once: a real
+        controller decelerates along the path instead (not modelled)."""
         self.status.runtime_state = RuntimeState.STOPPED
+        self.watchdogs.clear()
         self._blocking_until = None
         self.plant.hold()
 
@@ -117,7 +129,7 @@ class ControlScript:
             self._write_out(0, DONE)
 
     def _process(self, command: int) -> None:
-        if command != SERVOJ:
+        if command not in (SERVOJ, SET_WATCHDOG):
             self._servo_window = None  # after any other motion servoj starts afresh
         handler = self._by_command.get(command)
         if handler is None:
@@ -135,6 +147,18 @@ class ControlScript:
         if self._servo_window is None or self._servo_window.lookahead_s != lookahead:
             self._servo_window = ServoLookahead(lookahead, self.cycle_s)
         self.plant.command_position(self._servo_window.smoothed(self._doubles(0, 6)))
+
+    def _set_watchdog(self) -> None:
+        # rtde_set_watchdog("input_int_register_<int offset>", read_input_float_reg(0), "stop")
+        frequency = self.registers.double_in(0, self.offsets.float_offset)
+        if not (math.isfinite(frequency) and frequency > 0.0):
+            # A URScript runtime error ends the program (the manual gives no valid range; a
+            # frequency that is not positive cannot describe a period).
+            print(f"ur_controller: rtde_set_watchdog: min_frequency {frequency} is not positive; "
+                  "program stopped", file=sys.stderr)
+            self.stop()
+            return
+        self.watchdogs.arm(f"input_int_register_{self.offsets.int_offset}", frequency)
 
     def _move_j(self) -> None:
         target = self._doubles(0, 6)

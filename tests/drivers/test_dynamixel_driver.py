@@ -52,8 +52,13 @@ def clear_faults(bus: BusEmulator) -> Iterator[None]:
     bus.inject("clear")
 
 
+PATIENT_WATCHDOG = {"watchdog_periods": 500}
+"""2 s at 4 ms: these tests pause between packets, which the kernel never does; the Bus
+Watchdog's own tests are in test_dynamixel_watchdog.py."""
+
+
 def settings(port: str, **overrides: Any) -> DynamixelSettings:
-    return DynamixelSettings(port=port, **{**WIDE_TIMING, **overrides})
+    return DynamixelSettings(port=port, **{**WIDE_TIMING, **PATIENT_WATCHDOG, **overrides})
 
 
 def active_driver(port: str, **overrides: Any) -> contextlib.AbstractAsyncContextManager:

@@ -178,7 +178,8 @@ def test_bad_settings_name_the_key_and_the_host() -> None:
 @pytest.mark.parametrize(("key", "value"), [
     ("servo_lookahead_s", 0.02), ("servo_lookahead_s", 0.25), ("servo_gain", 2500.0),
     ("servo_velocity", 3.5), ("servo_acceleration", -1.0), ("frequency_hz", 1000.0),
-    ("servo_gain", math.nan), ("host", " "),
+    ("servo_gain", math.nan), ("host", " "), ("watchdog_periods", 1),
+    ("watchdog_periods", 10_001), ("watchdog_periods", -1),
 ])
 def test_settings_outside_the_library_ranges_are_refused(key: str, value: object) -> None:
     with pytest.raises(SettingsError, match=key.split("_")[0]):
@@ -189,6 +190,9 @@ def test_settings_accept_the_range_edges() -> None:
     settings = URSettings(host="10.0.0.7", servo_lookahead_s=0.03, servo_gain=2000.0,
                           servo_velocity=3.14, servo_acceleration=40.0)
     assert settings.stall_after_s == pytest.approx(0.1)
+    assert settings.watchdog_frequency_hz(0.002) == pytest.approx(20.0)  # 25 periods, 50 ms
+    assert URSettings(host="10.0.0.7", watchdog_periods=0).watchdog_frequency_hz(0.002) is None
+    assert URSettings(host="10.0.0.7", watchdog_periods=2).watchdog_frequency_hz(0.002) == 250.0
 
 
 async def test_connect_retries_while_the_controller_comes_up() -> None:

@@ -37,10 +37,16 @@ def emulator() -> Iterator[EmulatedController]:
         yield controller
 
 
+PATIENT_WATCHDOG = 2500
+"""Control periods (5 s): these tests pause between writes (up to 2 s while the arm settles),
+which the kernel never does; the watchdog's own tests are in test_ur_watchdog.py."""
+
+
 @pytest_asyncio.fixture(scope="module", loop_scope="module")
 async def shared_arm(emulator: EmulatedController) -> AsyncIterator[ManagedDriver]:
     emulator.clear()
-    async with active(URRTDEDriver(URSettings(host=emulator.host), name="ur5e"), CONTROL) as arm:
+    settings = URSettings(host=emulator.host, watchdog_periods=PATIENT_WATCHDOG)
+    async with active(URRTDEDriver(settings, name="ur5e"), CONTROL) as arm:
         yield arm
 
 

@@ -34,8 +34,14 @@ TOOL_OUTPUT_0 = 1 << 16
 TOOL = "tool_digital_output"
 
 
+PATIENT_WATCHDOG = 2500
+"""Control periods (5 s): these tests pause between writes, which the kernel never does; the
+watchdog's own tests are in test_ur_watchdog.py."""
+
+
 def gripper_settings(host: str, **extra: Any) -> URSettings:
-    return URSettings(host=host, gripper_output=0, **extra)
+    return URSettings(host=host, gripper_output=0, **{"watchdog_periods": PATIENT_WATCHDOG,
+                                                      **extra})
 
 
 def io_state(host: str, control_port: int) -> dict[str, Any]:
