@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from kernel.manifest import ClockKind, Manifest, ManifestError, load_manifest
+from kernel.scenario.bounds import CYCLES_MAX
 
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_MANIFEST = REPO / "manifests" / "sim-ur5e.toml"
@@ -46,6 +47,7 @@ def add_commands(commands: Any) -> None:
 def run_command(args: argparse.Namespace) -> int:
     _configure_logging(args)
     manifest = _with_overrides(load_manifest(args.manifest), args)
+    _preflight(manifest)
     journal_dir = None if args.no_journal or not manifest.journal.enabled else Path(
         args.journal_dir or manifest.journal.directory)
     summary = asyncio.run(_run(manifest, journal_dir)) if manifest.cell.clock is (
@@ -67,11 +69,27 @@ def _configure_logging(args: argparse.Namespace) -> None:
         raise ManifestError(f"--log-level: {error}") from None
 
 
+def _preflight(manifest: Manifest) -> None:
+    """Every check that needs more than the manifest's own keys, made before any device,
+    emulator or server starts: the task's layout against the robot, the clock against the
+    driver.
+
+    Raises:
+        ManifestError: naming the file and the key.
+    """
+    from kernel.app.task import check_task
+
+    check_task(manifest)
+    if manifest.cell.clock is ClockKind.VIRTUAL and manifest.driver_name != "sim":
+        raise ManifestError(f"{manifest.path}: cell.clock: a virtual clock needs the in-process "
+                            f"plant (driver 'sim'); {manifest.driver_name!r} runs in real time")
+
+
 def _with_overrides(manifest: Manifest, args: argparse.Namespace) -> Manifest:
     cell = manifest.cell
     if args.cycles is not None:
-        if args.cycles < 1:
-            raise ManifestError("--cycles: must be at least 1")
+        if not 1 <= args.cycles <= CYCLES_MAX:
+            raise ManifestError(f"--cycles: must be 1 to {CYCLES_MAX}, got {args.cycles}")
         cell = dataclasses.replace(cell, cycles=args.cycles)
     if args.clock is not None:
         cell = dataclasses.replace(cell, clock=ClockKind(args.clock))
