@@ -115,20 +115,23 @@ def load_manifest(path: str | Path) -> Manifest:
         ManifestError: naming the file and the key, for anything a run could not use; nothing
             has started when it is raised.
     """
-    path = Path(path)
-    where = Where(str(path), "")
     try:
-        doc = _parse_toml(read_text(path, str(path)), str(path))
-        check_document(doc, where)
-        _refuse_unknown(doc, where)
-        sections = {key: doc[key] for key in SCENARIO_SECTIONS if key in doc}
-        core = build_config(sections, where)
-        driver = dict(_table(doc, "driver", where))
-        driver_name = text(driver, "name", where.at("driver"), numbers_ok=False)
+        return _load(Path(path))
     except ManifestError:
         raise
-    except ScenarioError as error:
+    except ScenarioError as error:  # the sections a manifest shares with a scenario
         raise ManifestError(str(error)) from None
+
+
+def _load(path: Path) -> Manifest:
+    where = Where(str(path), "")
+    doc = _parse_toml(read_text(path, str(path)), str(path))
+    check_document(doc, where)
+    _refuse_unknown(doc, where)
+    sections = {key: doc[key] for key in SCENARIO_SECTIONS if key in doc}
+    core = build_config(sections, where)
+    driver = dict(_table(doc, "driver", where))
+    driver_name = text(driver, "name", where.at("driver"), numbers_ok=False)
     if driver_name != "sim" and core.state_timeout_ns is None:
         raise where.at("timing").error(
             "missing required key 'state_timeout_ms': a real device needs the state watchdog "

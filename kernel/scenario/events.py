@@ -76,7 +76,7 @@ def parse_events(raw: Any, where: Where, limits: JointLimits) -> list[Item]:
         if not isinstance(item, dict):
             raise here.error("must be an object with 't' and 'kind'")
         kind = item.get("kind")
-        here = Where(here.file, f"{here.path} ({kind})") if isinstance(kind, str) else here
+        here = here.note(kind) if isinstance(kind, str) else here
         t = ms_to_ns(number(item, "t", here, minimum=0, maximum=EVENT_TIME_MAX_MS))
         if kind == "command":
             # Written once the driver has answered: events the policy link fed meanwhile may

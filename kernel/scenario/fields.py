@@ -33,19 +33,42 @@ class Where:
         if isinstance(key, int):
             part = f"[{key}]"
         else:
-            name = key if len(key) <= SHOWN_CHARS else f"{key[:SHOWN_CHARS]}..."
+            name = printable(key)
             part = f".{name}" if self.path else name
         return Where(self.file, f"{self.path}{part}")
 
+    def note(self, text: str) -> Where:
+        """The same place with a note, e.g. an event's kind: ``events[3] (state)``."""
+        return Where(self.file, f"{self.path} ({printable(text)})")
+
     def error(self, message: str) -> ScenarioError:
         place = f"{self.path}: " if self.path else ""
-        return ScenarioError(f"{self.file}: {place}{message}")
+        return ScenarioError(f"{self.file}: {place}{one_line(message)}")
+
+
+def one_line(text: str) -> str:
+    """``text`` with every unprintable character escaped (a message quoting a file's text, a
+    model path with a newline, stays one line)."""
+    if text.isprintable():
+        return text
+    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
+
+
+def printable(name: str) -> str:
+    """A key as it appears in a place: as written when it is plain text, quoted with escapes
+    when it holds a newline or another unprintable character (a message stays one line), cut
+    short when long."""
+    text = name if name.isprintable() else repr(name)
+    return text if len(text) <= SHOWN_CHARS else f"{text[:SHOWN_CHARS]}..."
 
 
 def shown(value: Any) -> str:
     """``repr(value)`` cut short, safe for any value a parser can produce."""
     if isinstance(value, int) and not isinstance(value, bool) and value.bit_length() > 64:
-        return f"an integer of about {int(value.bit_length() * math.log10(2)) + 1} digits"
+        try:
+            return f"an integer of {len(str(abs(value)))} digits"
+        except ValueError:  # beyond the interpreter's digit limit for int-to-text conversion
+            return f"an integer of about {int(value.bit_length() * math.log10(2)) + 1} digits"
     text = repr(value)
     return text if len(text) <= SHOWN_CHARS else f"{text[:SHOWN_CHARS]}..."
 
