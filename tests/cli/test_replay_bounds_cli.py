@@ -231,3 +231,19 @@ def test_a_bad_journal_exits_2_naming_the_line_or_key(
     text = "\n".join(change(_journal_lines()))
     path.write_bytes(text.encode("utf-8", errors="surrogateescape"))
     assert needle in _replay(path, capsys)
+
+
+def test_a_damaged_decision_log_beside_a_journal_is_a_difference(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A journal replays against the decisions.jsonl beside it: bytes that are not UTF-8 there
+    are a difference to report (exit 1), not a crash."""
+    path = tmp_path / "journal.jsonl"
+    path.write_text("\n".join(_journal_lines()))
+    assert main(["replay", str(path), "--out", str(tmp_path / "decisions.jsonl")]) == 0
+    capsys.readouterr()
+    decisions = tmp_path / "decisions.jsonl"
+    decisions.write_bytes(decisions.read_bytes().replace(b'"kind"', b'"k\xffnd"', 1))
+    assert main(["replay", str(path)]) == 1
+    err = capsys.readouterr().err
+    assert "first difference in decisions.jsonl line 1" in err and "Traceback" not in err
