@@ -95,6 +95,45 @@ def check_document(doc: Any, where: Where) -> None:
     Raises:
         ScenarioError: naming the first offending place.
     """
+    if not _acceptable(doc):
+        _locate(doc, where)
+        raise where.error("holds a value no key may hold")  # _locate names it first
+
+
+def _acceptable(doc: Any) -> bool:
+    """The fast walk (a journal has millions of values): no places kept, only a verdict."""
+    pending: list[tuple[Any, int]] = [(doc, 0)]
+    while pending:
+        value, depth = pending.pop()
+        if isinstance(value, dict):
+            if depth >= MAX_DEPTH or not all(_valid_text(key) for key in value):
+                return False
+            pending.extend((item, depth + 1) for item in value.values())
+        elif isinstance(value, list):
+            if depth >= MAX_DEPTH:
+                return False
+            pending.extend((item, depth + 1) for item in value)
+        elif isinstance(value, str):
+            if not _valid_text(value):
+                return False
+        elif isinstance(value, WideInteger) or (
+                isinstance(value, int) and not INT64_MIN <= value <= INT64_MAX):
+            return False
+    return True
+
+
+def _valid_text(value: Any) -> bool:
+    if not isinstance(value, str) or value.isascii():
+        return True
+    try:
+        value.encode("utf-8")
+    except UnicodeEncodeError:
+        return False
+    return True
+
+
+def _locate(doc: Any, where: Where) -> None:
+    """The slow walk: the first offending place, named."""
     pending: list[tuple[Any, Where, int]] = [(doc, where, 0)]
     while pending:
         value, here, depth = pending.pop()
