@@ -111,6 +111,8 @@ def _check_values(settings: TaskSettings, where: Where) -> None:
 
 
 def _check_poses(settings: TaskSettings, manifest: Manifest, where: Where) -> None:
+    for index, row in enumerate(settings.tool_rotation):  # a rotation's entries are within ±1
+        vector(list(row), where.at("tool_rotation").at(index), 3, bound=1.0 + 1e-6)
     rotation = np.array(settings.tool_rotation)
     if not np.allclose(rotation @ rotation.T, np.eye(3), atol=1e-6):
         raise where.at("tool_rotation").error("not a rotation matrix (rows orthonormal)")
