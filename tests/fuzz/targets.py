@@ -16,6 +16,8 @@ in ``make fuzz``). The same functions serve both.
 
 from __future__ import annotations
 
+import atexit
+import shutil
 import tempfile
 from collections.abc import Callable
 from pathlib import Path
@@ -56,6 +58,7 @@ def _check_chunk(result: object) -> None:
 
 
 _DIRECTORY = Path(tempfile.mkdtemp(prefix="warden-fuzz-"))
+atexit.register(shutil.rmtree, _DIRECTORY, ignore_errors=True)
 
 
 def scenario(data: bytes) -> None:
