@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed-stamp
 
-.PHONY: run test lint bench replay clean
+.PHONY: run test lint bench replay clean fuzz
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -29,6 +29,25 @@ bench: $(STAMP)
 	$(BIN)/python bench/e2e.py
 	$(BIN)/python bench/kinematics.py
 	$(BIN)/python bench/drivers.py
+
+# Coverage-guided fuzzing of the wire decoder, the scenario loader and the manifest loader
+# (tests/fuzz): FUZZ_SECONDS per target with atheris, then the hypothesis fuzz and property tests
+# at FUZZ_SCALE times their `make test` size. Crashes land in build/fuzz/<target>/.
+FUZZ_SECONDS ?= 60
+FUZZ_SCALE ?= 20
+FUZZ_TARGETS := wire_frame wire_chunk scenario manifest
+
+fuzz: $(STAMP)
+	@if $(BIN)/pip install --quiet --disable-pip-version-check atheris==3.0.0; then \
+		for target in $(FUZZ_TARGETS); do \
+			echo "== atheris: $$target ($(FUZZ_SECONDS) s)"; \
+			$(BIN)/python -m tests.fuzz.atheris_fuzz $$target -max_total_time=$(FUZZ_SECONDS) \
+				-timeout=20 -rss_limit_mb=2048 -print_final_stats=1 || exit 1; \
+		done; \
+	else \
+		echo "atheris does not install here: running the hypothesis fuzzers only"; \
+	fi
+	WARDEN_FUZZ_SCALE=$(FUZZ_SCALE) $(BIN)/pytest -q tests/fuzz --hypothesis-show-statistics
 
 clean:
 	rm -rf $(VENV) build *.egg-info .pytest_cache .hypothesis

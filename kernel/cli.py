@@ -100,7 +100,11 @@ def _verify_journal(scenario: Scenario, run: Replay, encoded: list[bytes]) -> in
     decisions = Path(scenario.path).with_name("decisions.jsonl")
     compared = decisions.is_file()
     if problem is None and compared:
-        problem = _first_line_difference(decisions.read_bytes().splitlines(), encoded)
+        try:
+            recorded = decisions.read_bytes().splitlines()
+        except OSError as error:
+            raise ScenarioError(f"{decisions}: cannot read file: {error.strerror}") from None
+        problem = _first_line_difference(recorded, encoded)
     where = f"{scenario.path}: replay"
     if problem is not None:
         print(f"warden: {where}: first difference {problem}", file=sys.stderr)
@@ -114,8 +118,9 @@ def _verify_journal(scenario: Scenario, run: Replay, encoded: list[bytes]) -> in
 def _first_line_difference(recorded: list[bytes], replayed: list[bytes]) -> str | None:
     for number, (old, new) in enumerate(zip(recorded, replayed, strict=False), start=1):
         if old != new:
-            return (f"in decisions.jsonl line {number}: recorded {old.decode()[:300]}, "
-                    f"replayed {new.decode()[:300]}")
+            # The recorded file may be damaged: never fail on its bytes while quoting them.
+            return (f"in decisions.jsonl line {number}: recorded "
+                    f"{old.decode(errors='replace')[:300]}, replayed {new.decode()[:300]}")
     if len(recorded) != len(replayed):
         return (f"in decisions.jsonl: {len(recorded)} lines recorded, {len(replayed)} "
                 "replayed")

@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from kernel.manifest import ClockKind, Manifest, ManifestError, load_manifest
+from kernel.scenario.bounds import CYCLES_MAX
 
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_MANIFEST = REPO / "manifests" / "sim-ur5e.toml"
@@ -45,7 +46,7 @@ def add_commands(commands: Any) -> None:
 
 def run_command(args: argparse.Namespace) -> int:
     _configure_logging(args)
-    manifest = _with_overrides(load_manifest(args.manifest), args)
+    manifest = checked_manifest(args.manifest, args.cycles, args.clock)
     journal_dir = None if args.no_journal or not manifest.journal.enabled else Path(
         args.journal_dir or manifest.journal.directory)
     summary = asyncio.run(_run(manifest, journal_dir)) if manifest.cell.clock is (
@@ -67,14 +68,44 @@ def _configure_logging(args: argparse.Namespace) -> None:
         raise ManifestError(f"--log-level: {error}") from None
 
 
-def _with_overrides(manifest: Manifest, args: argparse.Namespace) -> Manifest:
+def checked_manifest(path: str | Path, cycles: int | None = None,
+                     clock: str | None = None) -> Manifest:
+    """The manifest ``warden run`` runs, with the command line's overrides, checked as far as
+    anything can be checked before a device, an emulator or a server starts. (The property
+    tests of ``tests/fuzz`` drive this: running the cell itself is not a loader's business.)
+
+    Raises:
+        ManifestError: naming the file (or the option) and the key; the CLI exits 2.
+    """
+    manifest = _with_overrides(load_manifest(path), cycles, clock)
+    _preflight(manifest)
+    return manifest
+
+
+def _preflight(manifest: Manifest) -> None:
+    """Every check that needs more than the manifest's own keys, made before any device,
+    emulator or server starts: the task's layout against the robot, the clock against the
+    driver.
+
+    Raises:
+        ManifestError: naming the file and the key.
+    """
+    from kernel.app.task import check_task
+
+    check_task(manifest)
+    if manifest.cell.clock is ClockKind.VIRTUAL and manifest.driver_name != "sim":
+        raise ManifestError(f"{manifest.path}: cell.clock: a virtual clock needs the in-process "
+                            f"plant (driver 'sim'); {manifest.driver_name!r} runs in real time")
+
+
+def _with_overrides(manifest: Manifest, cycles: int | None, clock: str | None) -> Manifest:
     cell = manifest.cell
-    if args.cycles is not None:
-        if args.cycles < 1:
-            raise ManifestError("--cycles: must be at least 1")
-        cell = dataclasses.replace(cell, cycles=args.cycles)
-    if args.clock is not None:
-        cell = dataclasses.replace(cell, clock=ClockKind(args.clock))
+    if cycles is not None:
+        if not 1 <= cycles <= CYCLES_MAX:
+            raise ManifestError(f"--cycles: must be 1 to {CYCLES_MAX}, got {cycles}")
+        cell = dataclasses.replace(cell, cycles=cycles)
+    if clock is not None:
+        cell = dataclasses.replace(cell, clock=ClockKind(clock))
     return dataclasses.replace(manifest, cell=cell)
 
 

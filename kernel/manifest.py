@@ -9,6 +9,8 @@ names the file and the key, and the CLI exits 2.
 
 from __future__ import annotations
 
+import math
+import re
 import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -18,8 +20,10 @@ from typing import Any
 
 from drivers.settings import SettingsError, settings_from_mapping
 from kernel.core.config import CoreConfig
+from kernel.scenario import bounds
 from kernel.scenario.config import build_config, check_keys
-from kernel.scenario.fields import ScenarioError, Where
+from kernel.scenario.document import check_document, read_text
+from kernel.scenario.fields import ScenarioError, Where, in_range, shown, text
 
 
 class ManifestError(ScenarioError):
@@ -121,37 +125,102 @@ _TOP_KEYS = frozenset({"name", "description", "cell", "driver", "emulator", "pol
 
 
 def load_manifest(path: str | Path) -> Manifest:
-    path = Path(path)
-    where = Where(str(path), "")
+    """Read and check a manifest: every key known, every value typed and within its bounds.
+
+    Raises:
+        ManifestError: naming the file and the key, for anything a run could not use; nothing
+            has started when it is raised.
+    """
     try:
-        doc = tomllib.loads(path.read_text(encoding="utf-8"))
-    except OSError as error:
-        raise ManifestError(f"{path}: cannot read file: {error.strerror or error}") from None
-    except tomllib.TOMLDecodeError as error:
-        raise ManifestError(f"{path}: not valid TOML: {error}") from None
+        return _load(Path(path))
+    except ManifestError:
+        raise
+    except ScenarioError as error:  # the sections a manifest shares with a scenario
+        raise ManifestError(str(error)) from None
+
+
+def _load(path: Path) -> Manifest:
+    where = Where(str(path), "")
+    doc = _parse_toml(read_text(path, str(path)), str(path))
+    check_document(doc, where)
     _refuse_unknown(doc, where)
     sections = {key: doc[key] for key in SCENARIO_SECTIONS if key in doc}
-    try:
-        core = build_config(sections, where)
-    except ScenarioError as error:
-        raise ManifestError(str(error)) from None
+    core = build_config(sections, where)
     driver = dict(_table(doc, "driver", where))
-    if "name" not in driver:
-        raise where.at("driver").error("missing required key 'name'")
-    if driver["name"] != "sim" and core.state_timeout_ns is None:
+    driver_name = text(driver, "name", where.at("driver"), numbers_ok=False)
+    if driver_name != "sim" and core.state_timeout_ns is None:
         raise where.at("timing").error(
             "missing required key 'state_timeout_ms': a real device needs the state watchdog "
             "(the arm stops when its state samples stop)")
+    del driver["name"]
     return Manifest(
-        name=str(doc.get("name", path.stem)), path=path, core=core, sections=sections,
-        driver_name=str(driver.pop("name")), driver_settings=driver,
+        name=_run_name(doc, path, where), path=path, core=core, sections=sections,
+        driver_name=driver_name, driver_settings=driver,
         emulator=_settings(EmulatorSettings, doc, "emulator", where),
-        cell=_settings(CellSettings, doc, "cell", where),
-        policy=_settings(PolicySettings, doc, "policy", where),
+        cell=_checked(_settings(CellSettings, doc, "cell", where), _CELL_BOUNDS,
+                      where.at("cell")),
+        policy=_policy(_settings(PolicySettings, doc, "policy", where), where.at("policy")),
         journal=_settings(JournalSettings, doc, "journal", where),
         task=dict(_table(doc, "task", where)),
         operator=_settings(OperatorSettings, doc, "operator", where),
     )
+
+
+def _parse_toml(raw: str, name: str) -> dict[str, Any]:
+    try:
+        return tomllib.loads(raw)
+    except tomllib.TOMLDecodeError as error:
+        raise ManifestError(f"{name}: not valid TOML: {error}") from None
+    except RecursionError:
+        raise ManifestError(f"{name}: nested too deeply (at most {bounds.MAX_DEPTH} levels of "
+                            "tables and arrays)") from None
+    except ValueError:  # tomllib converts an integer of more than 4300 digits and fails
+        raise ManifestError(f"{name}: {_wide_literal_place(raw)}: an integer of thousands of "
+                            "digits: integers are at most 64 bits") from None
+
+
+_WIDE_LITERAL = re.compile(r"[0-9][0-9_]{999,}")
+_TABLE_HEADER = re.compile(r"^\s*\[\[?\s*([^\]]+?)\s*\]", re.MULTILINE)
+_KEY = re.compile(r"[ \t]*([^=\s]+)[ \t]*=")
+
+
+def _wide_literal_place(raw: str) -> str:
+    """Where the integer literal tomllib could not convert is: its line, and the key it
+    belongs to when the line starts with one (the parser itself cannot say)."""
+    found = _WIDE_LITERAL.search(raw)
+    if found is None:
+        return "somewhere"
+    line_start = raw.rfind("\n", 0, found.start()) + 1
+    line = raw.count("\n", 0, found.start()) + 1
+    key = _KEY.match(raw, line_start)
+    if key is None or key.end() > found.start():
+        return f"line {line}"
+    tables = _TABLE_HEADER.findall(raw, 0, line_start)
+    table = f"{tables[-1]}." if tables else ""
+    return f"line {line}: {table}{key.group(1)}"
+
+
+_NAME = re.compile(bounds.NAME_PATTERN)
+
+
+def _run_name(doc: Mapping[str, Any], path: Path, where: Where) -> str:
+    """The run's name: a directory name under the journal directory, so never a path."""
+    if "description" in doc and not isinstance(doc["description"], str):
+        raise where.at("description").error(f"must be a string, got {shown(doc['description'])}")
+    if "name" not in doc:
+        if _NAME.fullmatch(path.stem):
+            return path.stem
+        raise where.at("name").error(
+            f"missing, and the file name {shown(path.stem)} is not a safe run name: set "
+            f"'name' ({_NAME_RULE})")
+    name = doc["name"]
+    if not isinstance(name, str) or not _NAME.fullmatch(name):
+        raise where.at("name").error(f"{shown(name)} is not a safe run name ({_NAME_RULE})")
+    return name
+
+
+_NAME_RULE = ("1 to 64 ASCII letters, digits, '.', '_' or '-', not starting with '.' or '-': "
+              "it names the run's directory")
 
 
 def _refuse_unknown(doc: Mapping[str, Any], where: Where) -> None:
@@ -185,6 +254,47 @@ def _table(doc: Mapping[str, Any], key: str, where: Where) -> Mapping[str, Any]:
     if not isinstance(value, dict):
         raise where.at(key).error("must be a table")
     return value
+
+
+_CELL_BOUNDS: dict[str, tuple[float, float]] = {
+    "cycles": (1, bounds.CYCLES_MAX),
+    "seed": (0, bounds.SEED_MAX),
+    "cycle_timeout_s": (bounds.CYCLE_TIMEOUT_MIN_S, bounds.CYCLE_TIMEOUT_MAX_S),
+    "insertion_tolerance_m": (0.0, bounds.LENGTH_MAX_M),
+}
+_POLICY_BOUNDS: dict[str, tuple[float, float]] = {
+    "port": (0, bounds.PORT_MAX),
+    "latency_median_ms": (0.0, bounds.DURATION_MAX_MS),
+    "latency_p95_ms": (0.0, bounds.DURATION_MAX_MS),
+    "chunk_horizon": (1, bounds.CHUNK_HORIZON_MAX),
+    "action_dt_ms": (bounds.PERIOD_MIN_MS, bounds.PERIOD_MAX_MS),
+    "noise_rad": (0.0, bounds.NOISE_MAX_RAD),
+    "clock_offset_ms": (-bounds.CLOCK_OFFSET_MAX_MS, bounds.CLOCK_OFFSET_MAX_MS),
+}
+"""Ranges of the numeric settings of ``[cell]`` and ``[policy]`` (docs/manifest.md)."""
+
+
+def _checked(settings: Any, ranges: Mapping[str, tuple[float, float]], where: Where) -> Any:
+    for key, (low, high) in ranges.items():
+        value = getattr(settings, key)
+        if isinstance(value, float) and not math.isfinite(value):
+            raise where.at(key).error(f"must be a finite number, got {value!r}")
+        in_range(value, where.at(key), minimum=low, maximum=high)
+    return settings
+
+
+def _policy(settings: PolicySettings, where: Where) -> PolicySettings:
+    _checked(settings, _POLICY_BOUNDS, where)
+    if settings.latency_p95_ms < settings.latency_median_ms:
+        raise where.at("latency_p95_ms").error(
+            f"must be at least latency_median_ms ({settings.latency_median_ms:g}), got "
+            f"{settings.latency_p95_ms:g}")
+    if not settings.launch and settings.port == 0:
+        raise where.at("port").error("must be the server's port (1 to 65535) with launch = "
+                                     "false; 0 picks a free port only for a launched server")
+    if not settings.host.strip():
+        raise where.at("host").error("must not be empty")
+    return settings
 
 
 def _settings(cls: type, doc: Mapping[str, Any], key: str, where: Where) -> Any:

@@ -22,7 +22,7 @@ from enum import StrEnum
 import msgspec
 import numpy as np
 
-from assurance.envelope import ArrayPayload, WireChunk, short_error
+from assurance.envelope import UNDECODABLE_FRAME, ArrayPayload, WireChunk, short_error
 from assurance.handshake import ClientHello, HandshakeDecision, HandshakeOffer
 
 PROTOCOL_RANGE: tuple[int, int] = (1, 2)
@@ -203,6 +203,8 @@ def decode_frame(data: bytes | str) -> Frame:
         return _frame_decoder.decode(data)
     except (msgspec.DecodeError, msgspec.ValidationError) as error:
         raise ProtocolViolation(f"undecodable frame: {short_error(error)}") from error
+    except UNDECODABLE_FRAME as error:  # invalid UTF-8 in the type, nesting too deep
+        raise ProtocolViolation(f"undecodable frame: {type(error).__name__}") from error
 
 
 def message_type(frame: Frame, version: int | None = None) -> MessageType:
@@ -225,6 +227,8 @@ def decode_body(frame: Frame, kind: MessageType) -> Message:
         return decoder.decode(frame.body)
     except (msgspec.DecodeError, msgspec.ValidationError) as error:
         raise ProtocolViolation(f"bad {kind} body: {short_error(error)}") from error
+    except UNDECODABLE_FRAME as error:  # invalid UTF-8 in a string, nesting too deep
+        raise ProtocolViolation(f"bad {kind} body: {type(error).__name__}") from error
 
 
 

@@ -1,10 +1,11 @@
 """The non-event parts of a scenario: robot, timing, phases, session, allowlist, motion →
 CoreConfig.
 
-These sections fail closed (docs/contract.md §7): an unknown key in ``robot``, ``timing``,
-``phases`` (or a phase card), ``session`` or ``motion`` is an error naming the key, so a
-misspelled limit or threshold can never silently mean its default; every arm joint needs a
-finite position, velocity and acceleration limit.
+These sections fail closed (docs/contract.md, "Reading a scenario"): an unknown key in
+``robot``, ``timing``, ``phases`` (or a phase card), ``session`` or ``motion`` is an error naming
+the key, so a misspelled limit or threshold can never silently mean its default; every arm joint
+needs a finite position, velocity and acceleration limit; and every limit and threshold lies
+within the physical bounds of :mod:`kernel.scenario.bounds`.
 """
 
 from __future__ import annotations
@@ -16,16 +17,29 @@ from typing import Any
 import numpy as np
 
 from assurance.clock import ms_to_ns
-from assurance.handshake import Session
 from assurance.limits import JointLimits
 from assurance.policy import ForceBand, PhasePolicy
 from assurance.watermarks import WatermarkConfig
-from kernel.core.config import ClientSide, CoreConfig, MotionConfig
+from kernel.core.config import CoreConfig, MotionConfig
+from kernel.scenario.bounds import (
+    ACCELERATION_LIMIT_MAX,
+    DEGRADE_AFTER_MAX,
+    DOF_MAX,
+    DURATION_MAX_MS,
+    FORCE_MAX_N,
+    JERK_MAX,
+    PERIOD_MAX_MS,
+    PERIOD_MIN_MS,
+    POSITION_LIMIT_MAX,
+    UNCERTAINTY_MAX_MS,
+    VELOCITY_LIMIT_MAX,
+)
 from kernel.scenario.fields import (
     ScenarioError,
     Where,
     choice,
     flag,
+    in_range,
     integer,
     is_number,
     mapping,
@@ -34,9 +48,8 @@ from kernel.scenario.fields import (
     vector,
 )
 from kernel.scenario.kinematics import cartesian_mapper, robot_kinematics
+from kernel.scenario.session import allowlist_section, session_section, state_vector
 from skills.phases import Executor, PhaseBook, PhaseCard, TaskPhase
-
-INITIAL_FINGERPRINT = "scenario-session"
 
 SECTION_KEYS: dict[str, frozenset[str]] = {
     "robot": frozenset({"dof", "position_limits", "velocity_limits", "acceleration_limits",
@@ -82,13 +95,13 @@ def build_config(doc: Mapping[str, Any], where: Where) -> CoreConfig:
     limits = robot_limits(robot, where.at("robot"))
     kinematics = robot_kinematics(robot, where.at("robot"), limits)
     timing = mapping(doc, "timing", where, required=False)
-    period = number(timing, "control_period_ms", where.at("timing"), default=2.0, positive=True)
-    if ms_to_ns(period) <= 0:
-        raise where.at("timing").at("control_period_ms").error(
-            f"must be at least 1 ns (0.000001 ms), got {period!r}")
-    uncertainty = number(timing, "clock_uncertainty_ms", where.at("timing"), 0.0, minimum=0)
+    period = number(timing, "control_period_ms", where.at("timing"), default=2.0,
+                    minimum=PERIOD_MIN_MS, maximum=PERIOD_MAX_MS)
+    uncertainty = number(timing, "clock_uncertainty_ms", where.at("timing"), 0.0, minimum=0,
+                         maximum=UNCERTAINTY_MAX_MS)
     session_doc = mapping(doc, "session", where)
-    client, session, phase, q0, epoch = _session(session_doc, where.at("session"), limits, period)
+    client, session, phase, q0, epoch = session_section(session_doc, where.at("session"),
+                                                        limits, period)
     cartesian = cartesian_mapper(doc, where, limits, client, kinematics)
     if cartesian is None and client.action_dim != limits.dim:
         raise where.at("session").at("action_dim").error(
@@ -97,27 +110,39 @@ def build_config(doc: Mapping[str, Any], where: Where) -> CoreConfig:
     return CoreConfig(
         limits=limits, control_period_ns=ms_to_ns(period),
         clock_uncertainty_ns=ms_to_ns(uncertainty),
-        phases=_phases(mapping(doc, "phases", where, required=False), where.at("phases")),
-        client=client, allowlist=_allowlist(doc, where, session),
+        phases=_phases(mapping(doc, "phases", where, required=False), where.at("phases"),
+                       limits),
+        client=client, allowlist=allowlist_section(doc, where, session),
         initial_session=session, initial_phase=phase, initial_q=q0, initial_epoch=epoch,
         watermarks=_watermarks(timing, where.at("timing")),
-        degrade_after=integer(timing, "degrade_after", where.at("timing"), 3, minimum=1),
-        state_timeout_ns=_optional_ms(timing, "state_timeout_ms", where.at("timing")),
+        degrade_after=integer(timing, "degrade_after", where.at("timing"), 3, minimum=1,
+                              maximum=DEGRADE_AFTER_MAX),
+        state_timeout_ns=_state_timeout(timing, where.at("timing"), period),
         cartesian=cartesian, kinematics=kinematics,
         motion=motion_config(mapping(doc, "motion", where, required=False), where.at("motion")),
     )
+
+
+def _state_timeout(timing: Mapping[str, Any], where: Where, period_ms: float) -> int | None:
+    timeout = _optional_ms(timing, "state_timeout_ms", where)
+    if timeout is not None and timeout < ms_to_ns(period_ms):
+        raise where.at("state_timeout_ms").error(
+            f"must be at least one control period ({period_ms:g} ms), got {timeout / 1e6:g}")
+    return timeout
 
 
 def motion_config(doc: Mapping[str, Any], where: Where) -> MotionConfig:
     default = MotionConfig()
     return MotionConfig(
         interpolator_jerk=number(doc, "interpolator_jerk", where, default.interpolator_jerk,
-                                 positive=True),
+                                 positive=True, maximum=JERK_MAX),
         planner_velocity=number(doc, "planner_velocity", where, default.planner_velocity,
-                                positive=True),
+                                positive=True, maximum=VELOCITY_LIMIT_MAX),
         planner_acceleration=number(doc, "planner_acceleration", where,
-                                    default.planner_acceleration, positive=True),
-        planner_jerk=number(doc, "planner_jerk", where, default.planner_jerk, positive=True),
+                                    default.planner_acceleration, positive=True,
+                                    maximum=ACCELERATION_LIMIT_MAX),
+        planner_jerk=number(doc, "planner_jerk", where, default.planner_jerk, positive=True,
+                            maximum=JERK_MAX),
         impedance=flag(doc, "impedance", where, default.impedance),
     )
 
@@ -126,7 +151,7 @@ def motion_config(doc: Mapping[str, Any], where: Where) -> MotionConfig:
 
 
 def robot_limits(robot: Mapping[str, Any], where: Where) -> JointLimits:
-    dof = integer(robot, "dof", where, minimum=1)
+    dof = integer(robot, "dof", where, minimum=1, maximum=DOF_MAX)
     grip = robot.get("gripper_index")
     if grip is not None:
         grip = integer(robot, "gripper_index", where, minimum=0)
@@ -134,13 +159,14 @@ def robot_limits(robot: Mapping[str, Any], where: Where) -> JointLimits:
             raise where.at("gripper_index").error(f"must be at most dof ({dof}), got {grip}")
     dim = dof + 1 if grip == dof else dof
     lower, upper = _position_limits(robot, where, dim, grip)
-    velocity = _rate_limits(robot, "velocity_limits", where, dim, grip)
-    acceleration = _rate_limits(robot, "acceleration_limits", where, dim, grip)
+    velocity = _rate_limits(robot, "velocity_limits", where, dim, grip, VELOCITY_LIMIT_MAX)
+    acceleration = _rate_limits(robot, "acceleration_limits", where, dim, grip,
+                                ACCELERATION_LIMIT_MAX)
     try:
         return JointLimits(
             lower, upper, velocity, acceleration, gripper_index=grip,
             gripper_event_threshold=number(robot, "gripper_event_threshold", where, 1e-3,
-                                           minimum=0),
+                                           minimum=0, maximum=POSITION_LIMIT_MAX),
         )
     except ValueError as error:
         raise where.error(str(error)) from None
@@ -161,17 +187,18 @@ def _position_limits(
         raise where.error("missing required key 'position_limits' (every joint needs one: "
                           "a limit never defaults to unbounded)")
     if is_number(raw):
-        bound = abs(float(raw))
+        bound = abs(number(robot, "position_limits", where, maximum=POSITION_LIMIT_MAX,
+                           minimum=-POSITION_LIMIT_MAX))
         return np.full(dim, -bound), np.full(dim, bound)
     if isinstance(raw, dict):
         low_key = "lower" if "lower" in raw else "min"
         high_key = "upper" if "upper" in raw else "max"
-        lower = vector(raw.get(low_key), here.at(low_key))
-        upper = vector(raw.get(high_key), here.at(high_key))
+        lower = vector(raw.get(low_key), here.at(low_key), bound=POSITION_LIMIT_MAX)
+        upper = vector(raw.get(high_key), here.at(high_key), bound=POSITION_LIMIT_MAX)
     elif isinstance(raw, list) and all(isinstance(p, list) and len(p) == 2 for p in raw) and (
         len(raw) in (dim, dim - 1)
     ):
-        pairs = [vector(p, here.at(i), 2) for i, p in enumerate(raw)]
+        pairs = [vector(p, here.at(i), 2, bound=POSITION_LIMIT_MAX) for i, p in enumerate(raw)]
         lower, upper = [p[0] for p in pairs], [p[1] for p in pairs]
     else:
         raise here.error("must be a list of [lower, upper] pairs, {lower, upper}, or a number")
@@ -186,7 +213,8 @@ def _position_limits(
 
 
 def _rate_limits(
-    robot: Mapping[str, Any], key: str, where: Where, dim: int, grip: int | None
+    robot: Mapping[str, Any], key: str, where: Where, dim: int, grip: int | None,
+    bound: float,
 ) -> np.ndarray:
     raw = robot.get(key)
     here = where.at(key)
@@ -194,9 +222,9 @@ def _rate_limits(
         raise where.error(f"missing required key {key!r} (every joint needs one: a limit "
                           "never defaults to unbounded)")
     if is_number(raw):
-        values = [float(raw)] * dim
+        values = [number(robot, key, where, positive=True, maximum=bound)] * dim
     else:
-        values = _pad_gripper(vector(raw, here), dim, grip, math.inf)
+        values = _pad_gripper(vector(raw, here, bound=bound), dim, grip, math.inf)
     if len(values) != dim:
         raise here.error(f"has {len(values)} entries, the robot has {dim} dimensions")
     if any(v <= 0 for v in values):
@@ -207,8 +235,9 @@ def _rate_limits(
 # -- phases -------------------------------------------------------------------------------------
 
 
-def _phases(doc: Mapping[str, Any], where: Where) -> PhaseBook:
+def _phases(doc: Mapping[str, Any], where: Where, limits: JointLimits) -> PhaseBook:
     cards: dict[TaskPhase, PhaseCard] = {}
+    span = joint_span(limits)
     for name, body in doc.items():
         here = where.at(name)
         if name not in TaskPhase.__members__:
@@ -220,18 +249,30 @@ def _phases(doc: Mapping[str, Any], where: Where) -> PhaseBook:
         if executor is not None:
             executor = Executor(choice(body, "executor", here, tuple(Executor)))
         proposals = flag(body, "proposals", here, True) if "proposals" in body else None
-        cards[phase] = PhaseBook.make_card(phase, phase_policy(body, here), executor, proposals)
+        cards[phase] = PhaseBook.make_card(phase, phase_policy(body, here, span), executor,
+                                           proposals)
     return PhaseBook(cards)
 
 
-def phase_policy(body: Mapping[str, Any], where: Where) -> PhasePolicy:
+def joint_span(limits: JointLimits) -> float:
+    """The widest position range of an arm joint: no joint-space distance of this robot (a
+    divergence, a projection) can be larger."""
+    arm = limits.arm_mask
+    return float(np.max(limits.upper[arm] - limits.lower[arm])) if arm.any() else 0.0
+
+
+def phase_policy(body: Mapping[str, Any], where: Where, span: float) -> PhasePolicy:
+    """One phase's admission bounds; ``span``: the widest joint range (see :func:`joint_span`)."""
     default = PhasePolicy()
+    why = "the widest joint range of this robot: a larger distance is not a bound"
     return PhasePolicy(
         max_observation_age_ns=_ms(body, "max_observation_age_ms", where,
                                    default.max_observation_age_ns),
         max_action_age_ns=_ms(body, "max_action_age_ms", where, default.max_action_age_ns),
-        max_divergence=number(body, "max_divergence", where, default.max_divergence, minimum=0),
-        max_projection=number(body, "max_projection", where, default.max_projection, minimum=0),
+        max_divergence=_distance(body, "max_divergence", where, default.max_divergence, span,
+                                 why),
+        max_projection=_distance(body, "max_projection", where, default.max_projection, span,
+                                 why),
         trim=flag(body, "trim", where, default.trim),
         blend=flag(body, "blend", where, default.blend),
         force_band=_force_band(body.get("force_band"), where.at("force_band")),
@@ -243,16 +284,23 @@ def phase_policy(body: Mapping[str, Any], where: Where) -> PhasePolicy:
     )
 
 
+def _distance(body: Mapping[str, Any], key: str, where: Where, default: float, span: float,
+              why: str) -> float:
+    value = number(body, key, where, default, minimum=0)
+    in_range(value, where.at(key), maximum=span, why=why)
+    return value
+
+
 def _ms(body: Mapping[str, Any], key: str, where: Where, default_ns: int) -> int:
     if body.get(key) is None:
         return default_ns
-    return ms_to_ns(number(body, key, where, minimum=0))
+    return ms_to_ns(number(body, key, where, minimum=0, maximum=DURATION_MAX_MS))
 
 
 def _optional_ms(body: Mapping[str, Any], key: str, where: Where) -> int | None:
     if body.get(key) is None:
         return None
-    value = number(body, key, where, positive=True)
+    value = number(body, key, where, positive=True, maximum=DURATION_MAX_MS)
     if ms_to_ns(value) <= 0:
         raise where.at(key).error(f"must be at least 1 ns (0.000001 ms), got {value!r}")
     return ms_to_ns(value)
@@ -261,87 +309,19 @@ def _optional_ms(body: Mapping[str, Any], key: str, where: Where) -> int | None:
 def _force_band(raw: Any, where: Where) -> ForceBand | None:
     if raw is None:
         return None
-    if is_number(raw) and math.isfinite(raw) and raw >= 0:
+    if is_number(raw) and not (isinstance(raw, float) and math.isnan(raw)) and raw >= 0:
+        in_range(float(raw), where, maximum=FORCE_MAX_N)
         return ForceBand(-float(raw), float(raw))
     if isinstance(raw, list) and len(raw) == 2:
-        low, high = vector(raw, where, 2)
+        low, high = vector(raw, where, 2, bound=FORCE_MAX_N)
         if low <= high:
             return ForceBand(low, high)
     if isinstance(raw, dict):
-        low, high = number(raw, "low", where), number(raw, "high", where)
+        low = number(raw, "low", where, minimum=-FORCE_MAX_N, maximum=FORCE_MAX_N)
+        high = number(raw, "high", where, minimum=-FORCE_MAX_N, maximum=FORCE_MAX_N)
         if low <= high:
             return ForceBand(low, high)
     raise where.error("must be a non-negative number, [low, high] or {low, high}")
-
-
-# -- session ------------------------------------------------------------------------------------
-
-
-def _session(
-    doc: Mapping[str, Any], where: Where, limits: JointLimits, period_ms: float
-) -> tuple[ClientSide, Session, TaskPhase, np.ndarray, int]:
-    protocol = doc.get("protocol", [1, 1])
-    version = vector(protocol, where.at("protocol"), 2)
-    if version[0] > version[1] or not all(float(v).is_integer() for v in version):
-        raise where.at("protocol").error("must be [min, max] integer versions with min <= max")
-    keys = doc.get("observation_keys", [])
-    if not isinstance(keys, list) or not all(isinstance(k, str) for k in keys):
-        raise where.at("observation_keys").error("must be a list of strings")
-    client = ClientSide(
-        skill=text(doc, "skill", where, default="skill"),
-        skill_version=text(doc, "skill_version", where),
-        observation_keys=tuple(keys),
-        action_dim=integer(doc, "action_dim", where, default=limits.dim, minimum=1),
-        action_units=text(doc, "action_units", where, default="rad"),
-        action_frame=text(doc, "action_frame", where, default="joint"),
-        controller_mode=text(doc, "controller_mode", where),
-        calibration_epoch=text(doc, "calibration_epoch", where),
-        protocol=(int(version[0]), int(version[1])),
-        control_rate_hz=1000.0 / period_ms,
-    )
-    session = Session(text(doc, "policy_checkpoint", where), text(doc, "config_hash", where),
-                      INITIAL_FINGERPRINT, int(version[1]), 1)
-    phase = TaskPhase(choice(doc, "phase", where, tuple(TaskPhase)))
-    q0 = _initial_state(doc, where, limits)
-    return client, session, phase, q0, integer(doc, "queue_epoch", where, 0, minimum=0)
-
-
-def _initial_state(doc: Mapping[str, Any], where: Where, limits: JointLimits) -> np.ndarray:
-    if "state" not in doc:
-        raise where.error("missing required key 'state'")
-    raw = doc["state"]
-    here = where.at("state")
-    if isinstance(raw, dict):
-        raw, here = raw.get("q"), here.at("q")
-    return state_vector(raw, here, limits)
-
-
-def state_vector(raw: Any, where: Where, limits: JointLimits, finite: bool = True) -> np.ndarray:
-    q = vector(raw, where, finite=finite)
-    grip = limits.gripper_index
-    if len(q) == limits.dim - 1 and grip is not None:
-        q = [*q[:grip], 0.0, *q[grip:]]
-    if len(q) != limits.dim:
-        raise where.error(f"has {len(q)} values, the robot has {limits.dim} dimensions")
-    return np.array(q)
-
-
-def _allowlist(
-    doc: Mapping[str, Any], where: Where, session: Session
-) -> frozenset[tuple[str, str]]:
-    if "allowlist" not in doc:
-        return frozenset({(session.policy_checkpoint, session.config_hash)})
-    raw = doc["allowlist"]
-    here = where.at("allowlist")
-    if not isinstance(raw, list):
-        raise here.error("must be a list of {policy_checkpoint, config_hash}")
-    entries = set()
-    for index, entry in enumerate(raw):
-        if not isinstance(entry, dict):
-            raise here.at(index).error("must be an object")
-        entries.add((text(entry, "policy_checkpoint", here.at(index)),
-                     text(entry, "config_hash", here.at(index))))
-    return frozenset(entries)
 
 
 def _watermarks(timing: Mapping[str, Any], where: Where) -> WatermarkConfig:

@@ -49,9 +49,8 @@ from kernel.core.events import (
 )
 from kernel.core.jobs import JobResult
 from kernel.journal import Applied, CommandRecord
-from kernel.scenario.config import state_vector
+from kernel.scenario.bounds import CLOCK_OFFSET_MAX_MS, EVENT_TIME_MAX_MS
 from kernel.scenario.fields import (
-    MAX_MAGNITUDE,
     Where,
     choice,
     integer,
@@ -61,6 +60,7 @@ from kernel.scenario.fields import (
     text,
     vector,
 )
+from kernel.scenario.session import state_vector
 from skills.phases import TaskPhase
 
 Item = Event | CommandRecord
@@ -79,8 +79,8 @@ def parse_events(raw: Any, where: Where, limits: JointLimits) -> list[Item]:
         if not isinstance(item, dict):
             raise here.error("must be an object with 't' and 'kind'")
         kind = item.get("kind")
-        here = Where(here.file, f"{here.path} ({kind})") if isinstance(kind, str) else here
-        t = ms_to_ns(number(item, "t", here, minimum=0))
+        here = here.note(kind) if isinstance(kind, str) else here
+        t = ms_to_ns(number(item, "t", here, minimum=0, maximum=EVENT_TIME_MAX_MS))
         if kind == "command":
             # Written once the driver has answered: events the policy link fed meanwhile may
             # come first. It names its tick's time, and is not an event for the core.
@@ -220,22 +220,21 @@ def _converted(raw: Any, kind: Any, where: Where) -> Any:
         raise where.error(f"not a valid record: {error}") from None
 
 
-MAX_NS = int(MAX_MAGNITUDE) * 1_000_000
-"""The largest clock offset or round trip a journal may carry, as for every time in ms."""
+MAX_NS = int(CLOCK_OFFSET_MAX_MS) * 1_000_000
+"""The largest clock offset or round trip a file may carry (docs/manifest.md, "Bounds")."""
 
 
 def _clock_sync(t: int, item: Mapping[str, Any], where: Where, _: JointLimits) -> Event:
     # Journals carry integer nanoseconds (``offset_ns``): a policy host's clock can be far
     # enough from ours that milliseconds as a float would not round-trip to the nanosecond.
     if "offset_ns" in item or "round_trip_ns" in item:
-        offset = integer(item, "offset_ns", where)
-        round_trip = integer(item, "round_trip_ns", where, minimum=0)
-        if abs(offset) > MAX_NS or round_trip > MAX_NS:
-            raise where.error(f"offset_ns and round_trip_ns must be at most {MAX_NS:g} in "
-                              "magnitude")
+        offset = integer(item, "offset_ns", where, minimum=-MAX_NS, maximum=MAX_NS)
+        round_trip = integer(item, "round_trip_ns", where, minimum=0, maximum=MAX_NS)
     else:
-        offset = ms_to_ns(number(item, "offset_ms", where))
-        round_trip = ms_to_ns(number(item, "round_trip_ms", where, minimum=0))
+        offset = ms_to_ns(number(item, "offset_ms", where, minimum=-CLOCK_OFFSET_MAX_MS,
+                                 maximum=CLOCK_OFFSET_MAX_MS))
+        round_trip = ms_to_ns(number(item, "round_trip_ms", where, minimum=0,
+                                     maximum=CLOCK_OFFSET_MAX_MS))
     return ClockSyncEvent(t=t, domain=text(item, "domain", where), offset=offset,
                           round_trip=round_trip)
 

@@ -1,4 +1,10 @@
-"""Typed reads from parsed JSON that fail with the file, the place and the field named."""
+"""Typed reads from parsed JSON or TOML that fail with the file, the place and the field named.
+
+Every read checks the type and the range: a number is finite and, where the caller gives them,
+within ``minimum``/``maximum`` (the bounds in :mod:`kernel.scenario.bounds`); an integer is
+64-bit. A value is shown in a message through :func:`shown`, which never fails and never floods
+the terminal (a 4000-digit integer or a megabyte string is summarised).
+"""
 
 from __future__ import annotations
 
@@ -10,6 +16,8 @@ from typing import Any
 MAX_MAGNITUDE = 1e13
 """No field is legitimately this large (as milliseconds: three centuries); larger values
 overflow the integer-nanosecond clock, so they are refused here with the field named."""
+SHOWN_CHARS = 60
+"""A value quoted in a message is cut to this many characters."""
 
 
 class ScenarioError(ValueError):
@@ -22,16 +30,59 @@ class Where:
     path: str
 
     def at(self, key: str | int) -> Where:
-        part = f"[{key}]" if isinstance(key, int) else (f".{key}" if self.path else key)
+        if isinstance(key, int):
+            part = f"[{key}]"
+        else:
+            name = printable(key)
+            part = f".{name}" if self.path else name
         return Where(self.file, f"{self.path}{part}")
+
+    def note(self, text: str) -> Where:
+        """The same place with a note, e.g. an event's kind: ``events[3] (state)``."""
+        return Where(self.file, f"{self.path} ({printable(text)})")
 
     def error(self, message: str) -> ScenarioError:
         place = f"{self.path}: " if self.path else ""
-        return ScenarioError(f"{self.file}: {place}{message}")
+        return ScenarioError(f"{self.file}: {place}{one_line(message)}")
+
+
+def one_line(text: str) -> str:
+    """``text`` with every unprintable character escaped (a message quoting a file's text, a
+    model path with a newline, stays one line)."""
+    if text.isprintable():
+        return text
+    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
+
+
+def printable(name: str) -> str:
+    """A key as it appears in a place: as written when it is plain text, quoted with escapes
+    when it holds a newline or another unprintable character (a message stays one line), cut
+    short when long."""
+    text = name if name.isprintable() else repr(name)
+    return text if len(text) <= SHOWN_CHARS else f"{text[:SHOWN_CHARS]}..."
+
+
+def shown(value: Any) -> str:
+    """``repr(value)`` cut short, safe for any value a parser can produce."""
+    if isinstance(value, int) and not isinstance(value, bool) and value.bit_length() > 64:
+        try:
+            return f"an integer of {len(str(abs(value)))} digits"
+        except ValueError:  # beyond the interpreter's digit limit for int-to-text conversion
+            return f"an integer of about {int(value.bit_length() * math.log10(2)) + 1} digits"
+    text = repr(value)
+    return text if len(text) <= SHOWN_CHARS else f"{text[:SHOWN_CHARS]}..."
 
 
 def is_number(value: Any) -> bool:
     return isinstance(value, int | float) and not isinstance(value, bool)
+
+
+def _finite(value: Any) -> bool:
+    """A number that is finite and within MAX_MAGNITUDE (an int never reaches math here, so a
+    huge one cannot overflow a float conversion)."""
+    if isinstance(value, int):
+        return abs(value) <= MAX_MAGNITUDE
+    return math.isfinite(value) and abs(value) <= MAX_MAGNITUDE
 
 
 def mapping(parent: Mapping[str, Any], key: str, where: Where, required: bool = True) -> dict:
@@ -47,7 +98,7 @@ def mapping(parent: Mapping[str, Any], key: str, where: Where, required: bool = 
 
 def number(
     parent: Mapping[str, Any], key: str, where: Where, default: float | None = None,
-    minimum: float | None = None, positive: bool = False,
+    minimum: float | None = None, positive: bool = False, maximum: float | None = None,
 ) -> float:
     if key not in parent or parent[key] is None:
         if default is None:
@@ -55,32 +106,46 @@ def number(
         return default
     value = parent[key]
     here = where.at(key)
-    if not is_number(value) or not math.isfinite(value):
-        raise here.error(f"must be a finite number, got {value!r}")
-    if abs(value) > MAX_MAGNITUDE:
-        raise here.error(f"must be at most {MAX_MAGNITUDE:g} in magnitude, got {value!r}")
-    if positive and value <= 0:
-        raise here.error(f"must be positive, got {value!r}")
-    if minimum is not None and value < minimum:
-        raise here.error(f"must be at least {minimum}, got {value!r}")
+    if not is_number(value) or (isinstance(value, float) and not math.isfinite(value)):
+        raise here.error(f"must be a finite number, got {shown(value)}")
+    if not _finite(value):
+        raise here.error(f"must be at most {MAX_MAGNITUDE:g} in magnitude, got {shown(value)}")
+    in_range(float(value), here, minimum, maximum, positive)
     return float(value)
+
+
+def in_range(
+    value: float, where: Where, minimum: float | None = None, maximum: float | None = None,
+    positive: bool = False, why: str = "",
+) -> None:
+    """Refuse ``value`` outside ``[minimum, maximum]`` (or not > 0 with ``positive``); ``why``
+    says where a bound comes from when it is not a constant."""
+    because = f" ({why})" if why else ""
+    if positive and value <= 0:
+        raise where.error(f"must be positive, got {shown(value)}")
+    if minimum is not None and value < minimum:
+        raise where.error(f"must be at least {minimum:g}{because}, got {shown(value)}")
+    if maximum is not None and value > maximum:
+        raise where.error(f"must be at most {maximum:g}{because}, got {shown(value)}")
 
 
 def integer(
     parent: Mapping[str, Any], key: str, where: Where, default: int | None = None,
-    minimum: int | None = None,
+    minimum: int | None = None, maximum: int | None = None,
 ) -> int:
     if key not in parent or parent[key] is None:
         if default is None:
             raise where.error(f"missing required key {key!r}")
         return default
     value = parent[key]
-    if isinstance(value, float) and value.is_integer():
+    if isinstance(value, float) and value.is_integer() and abs(value) <= MAX_MAGNITUDE:
         value = int(value)
     if not isinstance(value, int) or isinstance(value, bool):
-        raise where.at(key).error(f"must be an integer, got {value!r}")
+        raise where.at(key).error(f"must be an integer, got {shown(value)}")
     if minimum is not None and value < minimum:
-        raise where.at(key).error(f"must be at least {minimum}, got {value!r}")
+        raise where.at(key).error(f"must be at least {minimum}, got {shown(value)}")
+    if maximum is not None and value > maximum:
+        raise where.at(key).error(f"must be at most {maximum}, got {shown(value)}")
     return value
 
 
@@ -97,13 +162,13 @@ def text(
         return value
     if numbers_ok and isinstance(value, int) and not isinstance(value, bool):
         return str(value)
-    raise where.at(key).error(f"must be a non-empty string, got {value!r}")
+    raise where.at(key).error(f"must be a non-empty string, got {shown(value)}")
 
 
 def flag(parent: Mapping[str, Any], key: str, where: Where, default: bool) -> bool:
     value = parent.get(key, default)
     if not isinstance(value, bool):
-        raise where.at(key).error(f"must be true or false, got {value!r}")
+        raise where.at(key).error(f"must be true or false, got {shown(value)}")
     return value
 
 
@@ -113,15 +178,27 @@ def choice(
 ) -> str:
     value = text(parent, key, where, default)
     if value not in options:
-        raise where.at(key).error(f"unknown value {value!r} (expected one of {', '.join(options)})")
+        raise where.at(key).error(
+            f"unknown value {shown(value)} (expected one of {', '.join(options)})")
     return value
 
 
-def vector(value: Any, where: Where, length: int | None = None, finite: bool = True) -> list:
+def vector(
+    value: Any, where: Where, length: int | None = None, finite: bool = True,
+    bound: float | None = None,
+) -> list:
+    """A list of numbers; with ``finite`` every one finite, with ``bound`` every one within
+    ``[-bound, bound]`` (infinities, where allowed, are not checked against it)."""
     if not isinstance(value, list) or not all(is_number(v) for v in value):
         raise where.error("must be a list of numbers")
-    if finite and not all(math.isfinite(v) for v in value):
-        raise where.error("must hold finite numbers only")
     if length is not None and len(value) != length:
         raise where.error(f"has {len(value)} values, expected {length}")
+    for index, item in enumerate(value):
+        if isinstance(item, int) and abs(item) > MAX_MAGNITUDE:
+            raise where.at(index).error(
+                f"must be at most {MAX_MAGNITUDE:g} in magnitude, got {shown(item)}")
+        if finite and not math.isfinite(item):
+            raise where.error("must hold finite numbers only")
+        if bound is not None and math.isfinite(item) and abs(item) > bound:
+            raise where.at(index).error(f"must be within ±{bound:g}, got {shown(item)}")
     return [float(v) for v in value]

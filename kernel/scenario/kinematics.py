@@ -22,6 +22,7 @@ from assurance.kinematics import ArmKinematics, WorkspaceBox
 from assurance.limits import JointLimits
 from kernel.core.config import ClientSide
 from kernel.robot_model import BUILTIN, ModelError, ModelSpec, digest, load_kinematics
+from kernel.scenario.bounds import WORKSPACE_MAX_M
 from kernel.scenario.fields import Where, mapping, text, vector
 
 
@@ -32,14 +33,16 @@ def robot_kinematics(
     spec = model_spec(robot, where)
     if spec is None:
         return None
-    expected = robot.get("model_sha256")
-    if expected is not None and digest(spec.path) != text(robot, "model_sha256", where):
-        raise where.at("model_sha256").error(
-            f"{spec.path} changed since this was recorded (its SHA-256 differs)")
     try:
-        return load_kinematics(spec, int(limits.arm_mask.sum()))
+        kinematics = load_kinematics(spec, int(limits.arm_mask.sum()))  # a regular file, read
+        changed = robot.get("model_sha256") is not None and digest(spec.path) != text(
+            robot, "model_sha256", where)
     except ModelError as error:
         raise where.at("model" if "model" in robot else "kinematics").error(str(error)) from None
+    if changed:
+        raise where.at("model_sha256").error(
+            f"{spec.path} changed since this was recorded (its SHA-256 differs)")
+    return kinematics
 
 
 def model_spec(robot: Mapping[str, Any], where: Where) -> ModelSpec | None:
@@ -102,8 +105,8 @@ def _workspace(robot: Mapping[str, Any], where: Where) -> WorkspaceBox | None:
         return None
     box = mapping(robot, "workspace", where)
     here = where.at("workspace")
-    lower = vector(box.get("lower"), here.at("lower"), 3)
-    upper = vector(box.get("upper"), here.at("upper"), 3)
+    lower = vector(box.get("lower"), here.at("lower"), 3, bound=WORKSPACE_MAX_M)
+    upper = vector(box.get("upper"), here.at("upper"), 3, bound=WORKSPACE_MAX_M)
     for axis, (low, high) in enumerate(zip(lower, upper, strict=True)):
         if low > high:
             raise here.at("lower").at(axis).error(f"{low} exceeds the upper bound {high}")

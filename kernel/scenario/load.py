@@ -19,7 +19,9 @@ from typing import Any
 from assurance.clock import ms_to_ns
 from kernel.core.config import CoreConfig
 from kernel.core.events import TickEvent
+from kernel.scenario.bounds import TICKS_MAX, UNTIL_MAX_MS
 from kernel.scenario.config import build_config
+from kernel.scenario.document import check_document, parse_json, read_text
 from kernel.scenario.events import Item, parse_events
 from kernel.scenario.fields import ScenarioError, Where, number, text
 
@@ -56,19 +58,20 @@ class Scenario:
 
 
 def load_scenario(path: str | Path) -> Scenario:
-    path = Path(path)
+    """Read and check a scenario or a journal.
+
+    Raises:
+        ScenarioError: naming the file, the place and the problem, for anything that is not a
+            valid scenario (unreadable, not UTF-8, not JSON, a value out of its bounds, ...).
+    """
     name = str(path)
-    try:
-        raw = path.read_text(encoding="utf-8")
-    except OSError as error:
-        raise ScenarioError(f"{name}: cannot read file: {error.strerror or error}") from None
-    doc, lines = _parse(raw, name)
+    doc, lines = _parse(read_text(Path(path), name), name)
     return _scenario(doc, lines, name)
 
 
 def _parse(raw: str, name: str) -> tuple[Any, list[Any] | None]:
     try:
-        return json.loads(raw), None
+        doc = parse_json(raw, name)
     except json.JSONDecodeError as first_error:
         lines = [line for line in raw.splitlines() if line.strip()]
         if len(lines) < 2:
@@ -76,10 +79,14 @@ def _parse(raw: str, name: str) -> tuple[Any, list[Any] | None]:
         parsed = []
         for number_, line in enumerate(lines, start=1):
             try:
-                parsed.append(json.loads(line))
+                parsed.append(parse_json(line, name, number_))
             except json.JSONDecodeError as error:
                 raise ScenarioError(f"{name}: line {number_} is not valid JSON: {error}") from None
+        check_document(parsed[0], Where(name, ""))
+        check_document(parsed[1:], Where(name, "events"))
         return parsed[0], parsed[1:]
+    check_document(doc, Where(name, ""))
+    return doc, None
 
 
 def _scenario(doc: Any, journal_events: list[Any] | None, name: str) -> Scenario:
@@ -99,11 +106,29 @@ def _scenario(doc: Any, journal_events: list[Any] | None, name: str) -> Scenario
     events = parse_events(raw_events, where.at("events"), config.limits)
     last = events[-1].t if events else 0
     until = ms_to_ns(number(doc, "until", where, default=last / 1e6, minimum=0))
+    if fmt == SCENARIO_FORMAT:
+        _check_until(until, config.control_period_ns, "until" in doc, where.at("until"))
     return Scenario(
         name=text(doc, "name", where, default=Path(name).stem), path=name, config=config,
         events=events, until_ns=until, recorded_ticks=fmt == JOURNAL_FORMAT,
         expect=_matchers(doc, "expect", where), forbid=_matchers(doc, "forbid", where),
     )
+
+
+def _check_until(until_ns: int, period_ns: int, given: bool, where: Where) -> None:
+    """A scenario's ticks are generated up to ``until``: bound how many (a journal's ticks are
+    recorded lines, bounded by the file itself)."""
+    until_ms = until_ns / 1e6
+    if until_ms > UNTIL_MAX_MS:
+        what = f"{until_ms:g} ms" if given else (
+            f"not set, and its default, the time of the last event ({until_ms:g} ms),")
+        raise where.error(f"{what} is longer than a scenario may run: at most "
+                          f"{UNTIL_MAX_MS:g} ms (one hour)")
+    ticks = until_ns // period_ns + 1
+    if ticks > TICKS_MAX:
+        raise where.error(f"generates {ticks} ticks at timing.control_period_ms "
+                          f"{period_ns / 1e6:g}; at most {TICKS_MAX} (lengthen the period or "
+                          "shorten the scenario)")
 
 
 def _matchers(doc: dict[str, Any], key: str, where: Where) -> list[dict[str, Any]]:

@@ -8,6 +8,7 @@ from pathlib import Path
 import pytest
 
 from kernel.cli import main
+from kernel.cli_run import checked_manifest
 from tests.cell.harness import MANIFESTS
 
 BASE = (MANIFESTS / "sim-ur5e.toml").read_text()
@@ -110,3 +111,189 @@ def test_json_on_stdout_is_machine_readable(capsys: pytest.CaptureFixture[str]) 
     summary = json.loads(captured.out)  # the summary table went to stderr
     assert code == 0 and summary["cycles"]["verified"] == 1
     assert "verified" in captured.err
+
+
+# -- bad input found by new users: every case exits 2 before anything starts ----------------------
+
+
+@pytest.fixture
+def nothing_starts(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Fail the test if ``warden run`` gets as far as building a world (a plant, an emulator, a
+    device): every check below must happen while loading."""
+    def started(*_: object) -> None:
+        raise AssertionError("a device or emulator was started before the input was refused")
+
+    monkeypatch.setattr("kernel.app.session.world_for", started)
+
+
+BAD_VALUES = [
+    # [cell]
+    (("cycle_timeout_s = 30.0", "cycle_timeout_s = inf"), "cell.cycle_timeout_s: must be a finite"),
+    (("cycle_timeout_s = 30.0", "cycle_timeout_s = nan"), "cell.cycle_timeout_s: must be a finite"),
+    (("cycle_timeout_s = 30.0", "cycle_timeout_s = 1e9"), "cell.cycle_timeout_s: must be at most"),
+    (("cycles = 3", "cycles = 0"), "cell.cycles: must be at least 1"),
+    (("cycles = 3", "cycles = 10000000000"), "cell.cycles: must be at most"),
+    (("seed = 7", "seed = -1"), "cell.seed: must be at least 0"),
+    (("insertion_tolerance_m = 0.015", "insertion_tolerance_m = -0.1"),
+     "cell.insertion_tolerance_m"),
+    # [policy]
+    (("chunk_horizon = 20", "chunk_horizon = 0"), "policy.chunk_horizon: must be at least 1"),
+    (("chunk_horizon = 20", "chunk_horizon = 1000000"), "policy.chunk_horizon: must be at most"),
+    (("action_dt_ms = 20.0", "action_dt_ms = 0"), "policy.action_dt_ms: must be at least"),
+    (("latency_median_ms = 25.0", "latency_median_ms = -5.0"),
+     "policy.latency_median_ms: must be at least 0"),
+    (("latency_p95_ms = 60.0", "latency_p95_ms = 10.0"),
+     "policy.latency_p95_ms: must be at least latency_median_ms"),
+    (("port = 0 ", "port = -1 "), "policy.port: must be at least 0"),
+    (("port = 0 ", "port = 70000 "), "policy.port: must be at most 65535"),
+    (("launch = true ", "launch = false "), "policy.port: must be the server's port"),
+    (("clock_offset_ms = 137.0", "clock_offset_ms = 1e300"),
+     "policy.clock_offset_ms: must be at most"),
+    (("noise_rad = 0.0001", "noise_rad = nan"), "policy.noise_rad: must be a finite"),
+    # the run's name names a directory
+    (('name = "sim-ur5e"', 'name = "../../x"'), "name: '../../x' is not a safe run name"),
+    (('name = "sim-ur5e"', 'name = ".hidden"'), "name: '.hidden' is not a safe run name"),
+    (('name = "sim-ur5e"', 'name = "a/b"'), "name: 'a/b' is not a safe run name"),
+    (('name = "sim-ur5e"', "name = 5"), "name: 5 is not a safe run name"),
+    # [robot], [timing], [phases], [session]: the sections a scenario has
+    (("velocity_limits = [3.1416,", "velocity_limits = [1e9,"), "robot.velocity_limits[0]"),
+    (("acceleration_limits = [20.0,", "acceleration_limits = [1e12,"),
+     "robot.acceleration_limits[0]"),
+    (("position_limits = [[-6.2832, 6.2832]", "position_limits = [[-1e12, 1e12]"),
+     "robot.position_limits[0][0]"),
+    (("max_divergence = 0.03", "max_divergence = 1e9"), "phases.PRE_CONTACT.max_divergence"),
+    (("state = [0.0, -1.5708", "state = [100.0, -1.5708"), "session.state[0]: 100 is outside"),
+    (("dof = 6", "dof = 300000000"), "robot.dof: must be at most 64"),
+    (("control_period_ms = 2", "control_period_ms = 0"), "timing.control_period_ms"),
+    (("state_timeout_ms = 50", "state_timeout_ms = 1"), "timing.state_timeout_ms: must be at "
+                                                        "least one control period"),
+    # [task]: checked before anything starts too
+    (("home_q = [0.0,", "home_q = [100.0,"), "task.home_q[0]: 100 is outside"),
+    (("hole_depth = 0.03", "hole_depth = inf"), "task.hole_depth: must be a finite number"),
+    (("hole_depth = 0.03", "hole_depth = 1e9"), "task.hole_depth: must be at most"),
+    (("hole_top = [-0.55,", "hole_top = [-1e6,"), "task.hole_top[0]"),
+    (("gripper_open = 0.085", "gripper_open = 0.0"), "task.gripper_open: must exceed"),
+    (("tool_rotation = [[0.0, 1.0, 0.0]", "tool_rotation = [[0.0, 1e300, 0.0]"),
+     "task.tool_rotation[0][1]: must be within ±1"),
+    (("tool_rotation = [[0.0, 1.0, 0.0]", "tool_rotation = [[0.0, 0.9, 0.0]"),
+     "task.tool_rotation: not a rotation matrix"),
+    # fail closed
+    (("max_divergence = 0.03", "max_divergance = 0.03"),
+     "phases.PRE_CONTACT.max_divergance: unknown key"),
+    (("[timing]", "[timing]\nperiod_ms = 2"), "timing.period_ms: unknown key"),
+    (("[session]", "[session]\nepoch = 2"), "session.epoch: unknown key"),
+    (("[robot]", "[robot]\nmax_speed = 1.0"), "robot.max_speed: unknown key"),
+    (("[phases.RETREAT]", "[motion]\nplanner_speed = 1.0\n\n[phases.RETREAT]"),
+     "motion.planner_speed: unknown key"),
+    (("velocity_limits = [3.1416, 3.1416, 3.1416, 3.1416, 3.1416, 3.1416]", ""),
+     "robot: missing required key 'velocity_limits'"),
+    (("acceleration_limits = [20.0, 20.0, 20.0, 20.0, 20.0, 20.0]", ""),
+     "robot: missing required key 'acceleration_limits'"),
+    (("position_limits = [[-6.2832, 6.2832]", "unused = [[-6.2832, 6.2832]"),
+     "robot.unused: unknown key"),
+]
+
+
+@pytest.mark.parametrize(("change", "needle"), BAD_VALUES,
+                         ids=[f"{c[1].strip()[:40]}" for c, _ in BAD_VALUES])
+@pytest.mark.usefixtures("nothing_starts")
+def test_an_absurd_value_exits_2_before_anything_starts(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], change: tuple[str, str], needle: str
+) -> None:
+    assert change[0] in BASE
+    code, err = _run(tmp_path, BASE.replace(change[0], change[1], 1), capsys)
+    assert code == 2, err
+    assert needle in err and str(tmp_path / "cell.toml") in err
+    assert "Traceback" not in err and err.count("\n") == 1
+
+
+@pytest.mark.usefixtures("nothing_starts")
+def test_a_missing_position_limit_exits_2(tmp_path: Path,
+                                          capsys: pytest.CaptureFixture[str]) -> None:
+    start = BASE.index("position_limits = ")
+    end = BASE.index("velocity_limits = ")
+    code, err = _run(tmp_path, BASE[:start] + BASE[end:], capsys)
+    assert code == 2 and "robot: missing required key 'position_limits'" in err
+
+
+@pytest.mark.usefixtures("nothing_starts")
+def test_a_name_outside_the_journal_directory_writes_nothing(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    (tmp_path / "journal").mkdir()
+    path = tmp_path / "cell.toml"
+    path.write_text(BASE.replace('name = "sim-ur5e"', 'name = "../escaped"', 1))
+    code = main(["run", str(path), "--clock", "virtual", "--cycles", "1",
+                 "--journal-dir", str(tmp_path / "journal")])
+    assert code == 2 and "name" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cell.toml", "journal"]
+    assert not any((tmp_path / "journal").iterdir())
+
+
+@pytest.mark.parametrize("stem", ["my cell", ".hidden", "café"])
+@pytest.mark.usefixtures("nothing_starts")
+def test_a_file_name_that_is_no_safe_run_name_needs_a_name(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], stem: str
+) -> None:
+    path = tmp_path / f"{stem}.toml"
+    path.write_text(BASE.replace('name = "sim-ur5e"\n', "", 1))
+    assert main(["run", str(path), "--no-journal"]) == 2
+    assert "name: missing, and the file name" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(("raw", "needle"), [
+    (BASE.encode().replace(b"peg_insert", b"peg\xe9insert", 1), "not UTF-8 text (byte 0xe9)"),
+    (BASE.encode().replace(b"seed = 7", b"seed = " + b"9" * 5000, 1),
+     "line 10: cell.seed: an integer of thousands of digits"),
+    (BASE.encode().replace(b"seed = 7", b"seed = " + b"9" * 400, 1),
+     "cell.seed: an integer of 400 digits"),
+    (BASE.encode().replace(b"seed = 7", b"seed = " + b"[" * 50_000 + b"]" * 50_000, 1),
+     "nested too deeply"),
+    (BASE.encode().replace(b"dof = 6", b"dof = " + b"[" * 40 + b"6" + b"]" * 40, 1),
+     "robot.dof[0]"),
+    (BASE.encode().replace(b'skill = "peg_insert"', b'skill = "\\ud800"', 1), "not valid TOML"),
+], ids=["not UTF-8", "5000 digits", "400 digits", "nested", "nested 40", "surrogate"])
+@pytest.mark.usefixtures("nothing_starts")
+def test_a_manifest_no_parser_survives_exits_2(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], raw: bytes, needle: str
+) -> None:
+    path = tmp_path / "cell.toml"
+    path.write_bytes(raw)
+    assert main(["run", str(path), "--no-journal"]) == 2
+    err = capsys.readouterr().err
+    assert needle in err and str(path) in err and "Traceback" not in err
+
+
+@pytest.mark.parametrize("manifest", ["sim-ur5e-rtde.toml", "sim-dynamixel.toml",
+                                      "sim-canopen.toml"])
+@pytest.mark.usefixtures("nothing_starts")
+def test_a_real_device_needs_the_state_watchdog(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], manifest: str
+) -> None:
+    text = (MANIFESTS / manifest).read_text()
+    lines = [line for line in text.splitlines() if not line.startswith("state_timeout_ms")]
+    code, err = _run(tmp_path, "\n".join(lines), capsys)
+    assert code == 2 and "timing: missing required key 'state_timeout_ms'" in err
+
+
+@pytest.mark.parametrize("cycles", ["0", "-3", "10000000000"])
+@pytest.mark.usefixtures("nothing_starts")
+def test_cycles_on_the_command_line_are_bounded(
+    capsys: pytest.CaptureFixture[str], cycles: str
+) -> None:
+    assert main(["run", "--cycles", cycles, "--no-journal"]) == 2
+    assert "--cycles: must be 1 to 1000000" in capsys.readouterr().err
+
+
+@pytest.mark.usefixtures("nothing_starts")
+def test_a_virtual_clock_with_a_device_exits_2_before_it_starts(
+    capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert main(["run", str(MANIFESTS / "sim-ur5e-rtde.toml"), "--clock", "virtual",
+                 "--no-journal"]) == 2
+    assert "cell.clock: a virtual clock needs the in-process plant" in capsys.readouterr().err
+
+
+def test_every_shipped_manifest_is_within_the_bounds() -> None:
+    for path in sorted(MANIFESTS.glob("*.toml")):
+        checked_manifest(path)

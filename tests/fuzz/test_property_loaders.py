@@ -1,0 +1,156 @@
+"""Property: whatever a file holds, the loaders accept it or refuse it with exit 2, a message
+naming the file, and no traceback.
+
+Entry points driven:
+
+- scenarios and journals: ``kernel.cli.main(["replay", FILE])``, the whole command (load,
+  replay on the virtual clock, output): exit 0, or 2 naming the file. A journal may also exit 1,
+  the replay's verdict that a mutated journal no longer reproduces its recorded commands.
+- manifests: :func:`kernel.cli_run.checked_manifest`, which is everything ``warden run`` does
+  before it starts a device, an emulator or a server (manifest loader, ``[task]`` and robot
+  model checks, the clock against the driver); running a whole cell per example is not a
+  loader's test. It returns a manifest or raises ``ManifestError``, which ``main`` turns into
+  exit 2 (``tests/cell/test_run_cli.py`` checks that path).
+
+Inputs start from the shipped files (``manifests/*.toml``, ``manifests/scenarios/*.json``) and a
+journal recorded by ``warden run --clock virtual --cycles 1``, mutated by
+:mod:`tests.fuzz.mutate`: keys dropped and added, types changed, extreme numbers, unicode, deep
+nesting, 5000-digit integers, and byte-level damage.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import sys
+import tomllib
+from pathlib import Path
+from typing import Any
+
+import pytest
+from hypothesis import HealthCheck, event, given, settings
+from hypothesis import strategies as st
+
+from kernel.cli import main
+from kernel.cli_run import checked_manifest
+from kernel.manifest import ManifestError
+from tests.fuzz.mutate import byte_mutated, mutated, to_json, to_toml
+
+ROOT = Path(__file__).resolve().parents[2]
+SCALE = max(1, int(os.environ.get("WARDEN_FUZZ_SCALE", "1")))
+PROPERTY = settings(max_examples=100 * SCALE, deadline=None, suppress_health_check=[
+    HealthCheck.too_slow, HealthCheck.data_too_large, HealthCheck.large_base_example])
+SCENARIOS = {path.name: json.loads(path.read_text())
+             for path in sorted((ROOT / "manifests" / "scenarios").glob("*.json"))}
+MANIFESTS = {path.name: tomllib.loads(path.read_text())
+             for path in sorted((ROOT / "manifests").glob("*.toml"))}
+JOURNAL_LINES = 400
+"""The recorded journal is cut to its header and first events (a journal prefix is a journal):
+a replay per example stays fast."""
+
+
+def run_cli(argv: list[str]) -> tuple[int, str]:
+    """``main(argv)`` with stdout and stderr captured (main writes bytes to stdout)."""
+    out, err = io.TextIOWrapper(io.BytesIO()), io.StringIO()
+    saved = sys.stdout, sys.stderr
+    sys.stdout, sys.stderr = out, err
+    try:
+        code = main(argv)
+    finally:
+        sys.stdout, sys.stderr = saved
+    return code, err.getvalue()
+
+
+@pytest.fixture(scope="module")
+def workdir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return tmp_path_factory.mktemp("property")
+
+
+@pytest.fixture(scope="module")
+def journal(tmp_path_factory: pytest.TempPathFactory) -> list[Any]:
+    """A journal recorded by ``warden run --clock virtual --cycles 1``, as parsed lines."""
+    runs = tmp_path_factory.mktemp("runs")
+    code, err = run_cli(["run", "--clock", "virtual", "--cycles", "1", "--journal-dir",
+                         str(runs), "--log-format", "json"])
+    assert code == 0, err
+    (path,) = runs.glob("*/journal.jsonl")
+    lines = path.read_text().splitlines()
+    events = [json.loads(line) for line in lines]
+    chunks = [e for e in events if e.get("kind") in ("chunk", "observation", "computed")][:6]
+    # The prefix, and a few of the run's later events a mutation may move into it.
+    return [events[0], events[1:JOURNAL_LINES], chunks]
+
+
+def _check_exit(code: int, err: str, path: Path, allowed: set[int]) -> None:
+    event(f"exit {code}" + (f": {err.split(': ')[3][:40]}" if code == 2 else ""))
+    assert "Traceback" not in err
+    assert code in allowed, err
+    if code == 2:
+        assert err.startswith(f"warden: invalid input: {path}"), err
+        assert err.count("\n") == 1, err  # one line
+
+
+@PROPERTY
+@given(data=st.data(), name=st.sampled_from(sorted(SCENARIOS)))
+def test_mutated_scenarios_replay_or_exit_2(workdir: Path, data: st.DataObject,
+                                            name: str) -> None:
+    text = to_json(data.draw(mutated(SCENARIOS[name]), label="scenario"))
+    raw = data.draw(_damaged(text.encode()), label="bytes")
+    path = workdir / "scenario.json"
+    path.write_bytes(raw)
+    code, err = run_cli(["replay", str(path)])
+    _check_exit(code, err, path, {0, 2})
+
+
+@PROPERTY
+@given(data=st.data())
+def test_mutated_journals_replay_or_exit_2(workdir: Path, journal: list[Any],
+                                           data: st.DataObject) -> None:
+    header, events, later = journal
+    doc = data.draw(mutated({"header": header, "events": events, "later": later}),
+                    label="journal")
+    lines = [doc.get("header"), *_as_list(doc.get("events")), *_as_list(doc.get("later"))[:1]]
+    raw = "\n".join(to_json(line) for line in lines).encode()
+    raw = data.draw(_damaged(raw), label="bytes")
+    path = workdir / "journal.jsonl"
+    path.write_bytes(raw)
+    code, err = run_cli(["replay", str(path)])
+    _check_exit(code, err, path, {0, 1, 2})
+
+
+def _damaged(raw: bytes) -> st.SearchStrategy[bytes]:
+    """The bytes as they are, or (one time in four) damaged."""
+    return st.integers(0, 3).flatmap(lambda n: byte_mutated(raw) if n == 0 else st.just(raw))
+
+
+def _as_list(value: Any) -> list[Any]:
+    return value if isinstance(value, list) else [value]
+
+
+@PROPERTY
+@given(data=st.data(), name=st.sampled_from(sorted(MANIFESTS)))
+def test_mutated_manifests_load_or_are_refused(workdir: Path, data: st.DataObject,
+                                               name: str) -> None:
+    text = to_toml(data.draw(mutated(MANIFESTS[name]), label="manifest"))
+    raw = data.draw(_damaged(text.encode()), label="bytes")
+    path = workdir / "cell.toml"
+    path.write_bytes(raw)
+    try:
+        checked_manifest(path)
+        event("loaded")
+    except ManifestError as error:
+        event(f"refused: {str(error).split(': ')[1][:40]}")
+        assert str(error).startswith(f"{path}") or str(error).startswith("--"), error
+
+
+def test_the_shipped_files_pass_unmutated(workdir: Path, journal: list[Any]) -> None:
+    """The starting points are valid: a mutation is what a refusal is about."""
+    for name in MANIFESTS:
+        checked_manifest(ROOT / "manifests" / name)
+    path = workdir / "journal.jsonl"
+    header, events, _ = journal
+    path.write_text("\n".join(json.dumps(line) for line in [header, *events]))
+    assert run_cli(["replay", str(path)])[0] == 0
+    for name in SCENARIOS:
+        assert run_cli(["replay", str(ROOT / "manifests" / "scenarios" / name)])[0] == 0
