@@ -61,9 +61,23 @@ def test_real_device_unreachable_exits_2(tmp_path: Path,
     text = text.replace('plant = "mujoco"', "launch = false", 1)
     text = text.replace("cycle_timeout_s = 30.0", "cycle_timeout_s = 30.0\n"
                         "simulated_operator = false", 1)
-    code, err = _run(tmp_path, text, capsys)
+    operator = f'\n[operator]\nsocket = "{tmp_path / "operator.sock"}"\ngroup = "root"\n'
+    code, err = _run(tmp_path, text + operator, capsys)
     assert code == 2
     assert "127.0.0.9" in err and "check" in err
+
+
+def test_a_real_device_without_its_operator_socket_exits_2_before_touching_it(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    text = (MANIFESTS / "sim-ur5e-rtde.toml").read_text()
+    text = text.replace('name = "ur_rtde"', 'name = "ur_rtde"\nhost = "127.0.0.9"', 1)
+    text = text.replace('plant = "mujoco"', "launch = false", 1)
+    text = text.replace("cycle_timeout_s = 30.0", "cycle_timeout_s = 30.0\n"
+                        "simulated_operator = false", 1)
+    operator = f'\n[operator]\nsocket = "{tmp_path / "absent" / "operator.sock"}"\n'
+    code, err = _run(tmp_path, text + operator, capsys)
+    assert code == 2
+    assert "operator.socket" in err and "127.0.0.9" not in err  # the device was never tried
 
 
 @pytest.mark.parametrize(("manifest", "change", "needle"), [
