@@ -38,7 +38,7 @@ FUZZ_SCALE ?= 20
 FUZZ_TARGETS := wire_frame wire_chunk scenario manifest
 
 fuzz: $(STAMP)
-	@if $(BIN)/pip install --quiet --disable-pip-version-check atheris==3.0.0; then \
+	@if $(BIN)/pip install --quiet --disable-pip-version-check -e '.[dev,fuzz]'; then \
 		for target in $(FUZZ_TARGETS); do \
 			echo "== atheris: $$target ($(FUZZ_SECONDS) s)"; \
 			$(BIN)/python -m tests.fuzz.atheris_fuzz $$target -max_total_time=$(FUZZ_SECONDS) \

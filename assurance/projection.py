@@ -272,10 +272,15 @@ def _reach(steps: np.ndarray, b: _Bounds) -> np.ndarray:
 
 
 def _violations(actions: np.ndarray, ref: Reference, b: _Bounds) -> np.ndarray:
-    """Boolean H×D: which entries break a bound, checked on the proposal as it stands."""
+    """Boolean H×D: which entries break a bound, checked on the proposal as it stands.
+
+    Finite but astronomical actions (1e300 rad) overflow into inf in the braking reach; inf
+    is past every bound, which is the right answer, so the overflow is not worth a warning.
+    """
     out = (actions < b.lower) | (actions > b.upper)
-    steps, changes = _steps(actions, ref)
-    ahead = actions + _reach(steps, b)
+    with np.errstate(over="ignore", invalid="ignore"):
+        steps, changes = _steps(actions, ref)
+        ahead = actions + _reach(steps, b)
     rate = (np.abs(steps) > b.v_step + _EPS) | (np.abs(changes) > b.a_step + _EPS)
     rate |= (ahead > b.upper) | (ahead < b.lower)
     out[:, b.arm] |= rate[:, b.arm]
