@@ -15,7 +15,7 @@ from assurance.envelope import Chunk, ReplacementPolicy
 from assurance.gates import Timing
 from assurance.limits import JointLimits
 from assurance.projection import Projection, Reference, project
-from assurance.queue import ActionQueue, Row, Segment
+from assurance.queue import ActionQueue, Row, Segment, SentRow
 
 
 class MergePlan(msgspec.Struct, frozen=True, eq=False):
@@ -49,7 +49,7 @@ class MergeInputs(msgspec.Struct, frozen=True, eq=False):
     """Where the robot is being held, if it is; else it starts from ``measured_q`` (clipped
     into the limits) when no queued row precedes the chunk."""
     measured_q: np.ndarray
-    last_setpoint: Row | None = None
+    last_setpoint: SentRow | None = None
     """The row the last tick sent, if it sent one: precedes the chunk when the queue has no
     row before it any more (purged by a new epoch), so the new rows continue its motion."""
     next_tick: int | None = None
@@ -142,19 +142,19 @@ def _reference(
     rest. With nothing queued before it, it is the setpoint the last tick sent (the queue was
     purged under a moving arm), contiguous, or else the current hold (or the measured state).
     """
-    before = _last_sent_before(queue, first_due if cut_at is None else min(first_due, cut_at),
+    queued = _last_sent_before(queue, first_due if cut_at is None else min(first_due, cut_at),
                                inputs)
+    before = SentRow.of(queued) if queued is not None else None
     last = inputs.last_setpoint
     if before is None and last is not None and _contiguous(last, first_due, dt):
         before = last
     if before is None:
         start = inputs.hold_q if inputs.hold_q is not None else limits.clip(inputs.measured_q)
         return Reference(start, np.zeros_like(start))
-    seg, q = before.segment, before.q
     if not _contiguous(before, first_due, dt):
-        return Reference(q, np.zeros_like(q))
-    step = seg.step_into(before.row)
-    return Reference(q, step if seg.dt == dt else step * (dt / seg.dt))
+        return Reference(before.q, np.zeros_like(before.q))
+    step = before.step
+    return Reference(before.q, step if before.dt == dt else step * (dt / before.dt))
 
 
 def _last_sent_before(queue: ActionQueue, anchor: int, inputs: MergeInputs) -> Row | None:
@@ -169,9 +169,9 @@ def _last_sent_before(queue: ActionQueue, anchor: int, inputs: MergeInputs) -> R
     return queue.row_in_force(t_ref) or queue.predecessor(anchor)
 
 
-def _contiguous(before: Row, first_due: int, dt: int) -> bool:
+def _contiguous(before: SentRow, first_due: int, dt: int) -> bool:
     due = before.due
-    return due + before.segment.dt >= first_due and due >= first_due - 2 * dt
+    return due + before.dt >= first_due and due >= first_due - 2 * dt
 
 
 def _segment(

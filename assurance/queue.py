@@ -79,6 +79,24 @@ class Row(msgspec.Struct, frozen=True, eq=False):
         return self.segment.first_index + self.row
 
 
+class SentRow(msgspec.Struct, frozen=True, eq=False):
+    """A row as it was when a tick sent it: its values, not a view into a segment that a later
+    merge may truncate."""
+
+    q: np.ndarray
+    step: np.ndarray
+    """The step into it from the row before it, on its grid."""
+    due: int
+    dt: int
+    t_obs: int
+    """When the observation it was conditioned on was taken."""
+
+    @classmethod
+    def of(cls, row: Row) -> SentRow:
+        segment = row.segment
+        return cls(row.q.copy(), segment.step_into(row.row), row.due, segment.dt, segment.t_obs)
+
+
 class ActionQueue:
     def __init__(self) -> None:
         self._segments: list[Segment] = []

@@ -67,6 +67,9 @@ class ReasonCode(StrEnum):
     """The operator reset an E_STOP: the runtime leaves it toward a validated hold."""
     PHASE_OWNER = "PHASE_OWNER"
     """The phase contract gives motion to a classical owner (planner, contact law, evaluator)."""
+    ENVELOPE = "ENVELOPE"
+    """A bound of the trial envelope was reached: the tool left the workspace box (commanded
+    or measured), or the wrist force exceeded its limit. The arm stops; the trial ends."""
 
 
 _ORDER = {code: index for index, code in enumerate(ReasonCode)}

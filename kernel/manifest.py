@@ -9,6 +9,8 @@ names the file and the key, and the CLI exits 2.
 
 from __future__ import annotations
 
+import dataclasses
+import hashlib
 import math
 import re
 import tomllib
@@ -22,7 +24,7 @@ from drivers.settings import SettingsError, settings_from_mapping
 from kernel.core.config import CoreConfig
 from kernel.scenario import bounds
 from kernel.scenario.config import build_config, check_keys
-from kernel.scenario.document import check_document, read_text
+from kernel.scenario.document import check_document, decoded, read_bytes
 from kernel.scenario.fields import ScenarioError, Where, in_range, shown, text
 
 
@@ -118,30 +120,45 @@ class Manifest:
     task: dict[str, Any] = field(default_factory=dict)
     """``[task]`` as written: the assembly task's layout (:mod:`kernel.app.task` checks it)."""
     operator: OperatorSettings = field(default_factory=OperatorSettings)
+    trial: TrialEnvelope | None = None
+    """``[trial]``: the envelope a bounded trial runs in (``warden trial`` requires it)."""
+    digest: str = ""
+    """SHA-256 of the exact bytes that were parsed (the journal records it)."""
+    signer: str | None = None
+    """The key id that verified those bytes, when a signature was checked before parsing."""
 
 
 _TOP_KEYS = frozenset({"name", "description", "cell", "driver", "emulator", "policy",
-                       "journal", "task", "operator", *SCENARIO_SECTIONS})
+                       "journal", "task", "operator", "trial", *SCENARIO_SECTIONS})
 
 
-def load_manifest(path: str | Path) -> Manifest:
+def load_manifest(path: str | Path, content: bytes | None = None,
+                  signer: str | None = None) -> Manifest:
     """Read and check a manifest: every key known, every value typed and within its bounds.
+
+    ``content``: the bytes to parse instead of reading ``path`` (the bytes a signature was
+    verified on, so that what is checked is what runs); ``signer``: the key id that verified
+    them.
 
     Raises:
         ManifestError: naming the file and the key, for anything a run could not use; nothing
             has started when it is raised.
     """
+    path = Path(path)
     try:
-        return _load(Path(path))
+        data = read_bytes(path, str(path)) if content is None else content
+        manifest = _load(path, decoded(data, str(path)))
     except ManifestError:
         raise
     except ScenarioError as error:  # the sections a manifest shares with a scenario
         raise ManifestError(str(error)) from None
+    return dataclasses.replace(manifest, digest=hashlib.sha256(data).hexdigest(),
+                               signer=signer)
 
 
-def _load(path: Path) -> Manifest:
+def _load(path: Path, raw: str) -> Manifest:
     where = Where(str(path), "")
-    doc = _parse_toml(read_text(path, str(path)), str(path))
+    doc = _parse_toml(raw, str(path))
     check_document(doc, where)
     _refuse_unknown(doc, where)
     sections = {key: doc[key] for key in SCENARIO_SECTIONS if key in doc}
@@ -163,6 +180,7 @@ def _load(path: Path) -> Manifest:
         journal=_settings(JournalSettings, doc, "journal", where),
         task=dict(_table(doc, "task", where)),
         operator=_settings(OperatorSettings, doc, "operator", where),
+        trial=_trial(doc, where),
     )
 
 
@@ -302,3 +320,39 @@ def _settings(cls: type, doc: Mapping[str, Any], key: str, where: Where) -> Any:
         return settings_from_mapping(cls, _table(doc, key, where), f"{where.file}: {key}")
     except SettingsError as error:
         raise ManifestError(str(error)) from None
+
+
+@dataclass(frozen=True, slots=True)
+class TrialEnvelope:
+    """``[trial]``: every bound of a bounded trial, all of them required."""
+
+    max_cycles: int
+    max_duration_s: float
+    workspace_lower: tuple[float, float, float]
+    """The box the tool (TCP) must stay in, base frame, metres: its lower corner..."""
+    workspace_upper: tuple[float, float, float]
+    """...and its upper corner."""
+    speed_scale: float
+    """Every joint's velocity limit is multiplied by this (0 < scale <= 1)."""
+    max_wrist_force_n: float
+
+
+_TRIAL_BOUNDS = {"max_cycles": (1, 1000), "max_duration_s": (1.0, 86_400.0),
+                 "speed_scale": (0.01, 1.0), "max_wrist_force_n": (0.1, 1000.0)}
+
+
+def _trial(doc: Mapping[str, Any], where: Where) -> TrialEnvelope | None:
+    if "trial" not in doc:
+        return None
+    envelope = _checked(_settings(TrialEnvelope, doc, "trial", where), _TRIAL_BOUNDS,
+                        where.at("trial"))
+    here = where.at("trial")
+    corners = (*envelope.workspace_lower, *envelope.workspace_upper)
+    if not all(math.isfinite(v) and abs(v) <= 100.0 for v in corners):
+        raise here.error("workspace_lower and workspace_upper must be finite, within 100 m")
+    for axis, (low, high) in enumerate(zip(envelope.workspace_lower, envelope.workspace_upper,
+                                           strict=True)):
+        if low >= high:
+            raise here.at("workspace_lower").at(axis).error(
+                f"{low} is not below workspace_upper[{axis}] = {high}")
+    return envelope

@@ -14,6 +14,7 @@ from assurance.clock import ClockSync
 from assurance.fallback import Mode, QueueAction
 from assurance.handshake import evaluate
 from assurance.reasons import ReasonCode as R
+from kernel.core.effects import Motion, Retreat, Setpoint
 from kernel.core.events import (
     ClockSyncEvent,
     ControllerEvent,
@@ -62,6 +63,32 @@ def on_state(state: CoreState, event: StateEvent) -> None:
     if event.force_residual is not None:
         state.motion.force = event.force_residual
         _check_force(state, event.force_residual)
+    _check_envelope(state, event.force_residual)
+
+
+def _check_envelope(state: CoreState, force: float | None) -> None:
+    """A trial's envelope, on what was measured: the tool in the box, the force below its
+    limit. A breach stops the arm (ENVELOPE)."""
+    bounds = state.config.envelope
+    if bounds is None:
+        return
+    too_hard = force is not None and not abs(force) <= bounds.max_force_n
+    if too_hard or not _tool_inside(state, state.measured_q[state.config.limits.arm_mask]):
+        state.fire(R.ENVELOPE)
+
+
+def outside_envelope(state: CoreState, motion: Motion) -> bool:
+    """Would this motion effect command the tool out of the trial's box?"""
+    if state.config.envelope is None or not isinstance(motion, Setpoint | Retreat):
+        return False
+    return not _tool_inside(state, np.asarray(motion.q))
+
+
+def _tool_inside(state: CoreState, q: np.ndarray) -> bool:
+    bounds, kinematics = state.config.envelope, state.config.kinematics
+    if bounds is None or kinematics is None:  # the loader requires the model with a box
+        return True
+    return bounds.workspace.contains(kinematics.forward(q).position)
 
 
 def on_observation(state: CoreState, event: ObservationEvent) -> None:

@@ -9,7 +9,7 @@ import numpy as np
 
 from assurance.cartesian import CartesianMapper
 from assurance.handshake import AllowList, ClientHello, Session
-from assurance.kinematics import ArmKinematics
+from assurance.kinematics import ArmKinematics, WorkspaceBox
 from assurance.limits import JointLimits
 from assurance.reasons import ReasonCode
 from assurance.watermarks import WatermarkConfig
@@ -69,6 +69,16 @@ class MotionConfig:
 
 
 @dataclass(frozen=True, slots=True, eq=False)
+class TrialBounds:
+    """The envelope of a bounded trial that the core enforces itself (the ``envelope``
+    section): the tool stays in the box, commanded and measured, and the wrist force stays
+    below its limit; otherwise ENVELOPE stops the arm."""
+
+    workspace: WorkspaceBox
+    max_force_n: float
+
+
+@dataclass(frozen=True, slots=True, eq=False)
 class CoreConfig:
     limits: JointLimits
     control_period_ns: int
@@ -93,6 +103,8 @@ class CoreConfig:
     """The arm's kinematic model, where the robot names one: the contact owner's descents
     need it (without it, contact is a compliant hold)."""
     motion: MotionConfig = field(default_factory=MotionConfig)
+    envelope: TrialBounds | None = None
+    """A trial's envelope (needs ``kinematics`` for the workspace box); None: no trial."""
 
     def __post_init__(self) -> None:
         if self.control_period_ns <= 0:

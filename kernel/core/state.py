@@ -17,7 +17,7 @@ from assurance.fallback import MODES, FallbackMachine, Mode, QueueAction, Transi
 from assurance.gates import AdmissionContext
 from assurance.handshake import Session
 from assurance.identity import ChunkMemory, ObservationLog
-from assurance.queue import ActionQueue, Row
+from assurance.queue import ActionQueue, SentRow
 from assurance.reasons import ReasonCode
 from assurance.watermarks import Watermarks
 from kernel.core.config import CoreConfig
@@ -46,7 +46,7 @@ class CoreState:
     watched_since: int | None = None
     """The first tick's time: the state watchdog counts from here until a sample arrives."""
     hold_q: np.ndarray | None = None
-    last_setpoint: Row | None = None
+    last_setpoint: SentRow | None = None
     """The queued row the last tick sent as a policy setpoint; None after any other tick. A
     chunk admitted before the next tick is projected from it even if the queue was purged
     since (a new epoch), so the stream of sent setpoints stays inside the limits."""

@@ -15,10 +15,10 @@ import numpy as np
 
 from assurance.clock import ns_to_ms
 from assurance.fallback import MODES, Command, Mode, Owner
-from assurance.queue import Row
+from assurance.queue import Row, SentRow
 from assurance.reasons import ReasonCode as R
-from kernel.core.authority import validate
-from kernel.core.effects import RequestObservation
+from kernel.core.authority import outside_envelope, validate
+from kernel.core.effects import Motion, RequestObservation
 from kernel.core.lines import QueueAction, QueueLine, RequestLine, SentRef, TickLine
 from kernel.core.motion import MotionContext, motion_for
 from kernel.core.state import CoreState
@@ -45,15 +45,24 @@ def tick(state: CoreState) -> TickCommand:
     row = _row_in_force(state) if state.fallback.mode is Mode.RUNNING else None
     decision = _decide(state, row)
     _track_hold(state, decision)
+    motion = _motion(state, decision, row)
+    if outside_envelope(state, motion):
+        # The setpoint would take the tool out of the trial's box: it is never sent; the arm
+        # stops now, and the tick is the fallback's.
+        state.fire(R.ENVELOPE)
+        row = None
+        decision = _decide(state, row)
+        _track_hold(state, decision)
+        motion = _motion(state, decision, row)
     policy_setpoint = decision.command is Command.SETPOINT and decision.owner is Owner.POLICY
-    state.last_setpoint = row if policy_setpoint else None
+    state.last_setpoint = SentRow.of(row) if policy_setpoint and row is not None else None
     _log(state, decision)
-    _command(state, decision, row)
+    state.effect(motion)
     _maybe_request(state)
     return decision
 
 
-def _command(state: CoreState, decision: TickCommand, row: Row | None) -> None:
+def _motion(state: CoreState, decision: TickCommand, row: Row | None) -> Motion:
     """The tick's one motion effect: what reaches the arm."""
     sent = stream = None
     if decision.sent is not None:
@@ -61,8 +70,8 @@ def _command(state: CoreState, decision: TickCommand, row: Row | None) -> None:
     if row is not None and decision.owner is Owner.POLICY:
         stream = (row.segment.step_into(row.row), row.segment.dt)
     context = MotionContext(state.config, state.t, state.measured_q, state.emit)
-    state.effect(motion_for(state.motion, context, decision.command, decision.owner,
-                            decision.target, sent, stream))
+    return motion_for(state.motion, context, decision.command, decision.owner, decision.target,
+                      sent, stream)
 
 
 def _watchdog(state: CoreState) -> None:

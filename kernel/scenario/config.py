@@ -49,6 +49,7 @@ from kernel.scenario.fields import (
 )
 from kernel.scenario.kinematics import cartesian_mapper, robot_kinematics
 from kernel.scenario.session import allowlist_section, session_section, state_vector
+from kernel.scenario.trial import trial_bounds
 from skills.phases import Executor, PhaseBook, PhaseCard, TaskPhase
 
 SECTION_KEYS: dict[str, frozenset[str]] = {
@@ -64,6 +65,7 @@ SECTION_KEYS: dict[str, frozenset[str]] = {
                           "protocol", "phase", "state"}),
     "motion": frozenset({"interpolator_jerk", "planner_velocity", "planner_acceleration",
                          "planner_jerk", "impedance"}),
+    "envelope": frozenset({"workspace", "max_wrist_force_n"}),
 }
 """The keys each fail-closed section may hold (``phases`` is checked per card)."""
 PHASE_KEYS = frozenset({"max_observation_age_ms", "max_action_age_ms", "max_divergence",
@@ -120,6 +122,7 @@ def build_config(doc: Mapping[str, Any], where: Where) -> CoreConfig:
         state_timeout_ns=_state_timeout(timing, where.at("timing"), period),
         cartesian=cartesian, kinematics=kinematics,
         motion=motion_config(mapping(doc, "motion", where, required=False), where.at("motion")),
+        envelope=trial_bounds(doc, where, kinematics),
     )
 
 

@@ -45,11 +45,28 @@ def read_text(path: Path, name: str) -> str:
     Raises:
         ScenarioError: the file cannot be read, or is not UTF-8.
     """
+    return decoded(read_bytes(path, name), name)
+
+
+def read_bytes(path: Path, name: str) -> bytes:
+    """The file's bytes.
+
+    Raises:
+        ScenarioError: the file cannot be read.
+    """
     try:
-        data = path.read_bytes()
+        return path.read_bytes()
     except (OSError, ValueError) as error:  # ValueError: a NUL byte in the path
         message = getattr(error, "strerror", None) or error
         raise ScenarioError(f"{name}: cannot read file: {message}") from None
+
+
+def decoded(data: bytes, name: str) -> str:
+    """``data`` as UTF-8 text.
+
+    Raises:
+        ScenarioError: it is not UTF-8, with the place of the first bad byte.
+    """
     try:
         return data.decode("utf-8")
     except UnicodeDecodeError as error:

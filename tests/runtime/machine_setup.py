@@ -91,5 +91,5 @@ def tick(core: Core, t_ns: int) -> tuple[Ticked, list[Line]]:
     row = core.state.last_setpoint
     if line.sent is None or row is None:
         return Ticked(None, None, None, step.motion, line.reason), list(step.lines)
-    return Ticked(line.sent, np.asarray(row.q), row.segment.t_obs, step.motion,
+    return Ticked(line.sent, np.asarray(row.q), row.t_obs, step.motion,
                   line.reason), list(step.lines)
