@@ -45,18 +45,18 @@ def add_commands(commands: Any) -> None:
 
 
 def run_command(args: argparse.Namespace) -> int:
-    _configure_logging(args)
+    configure_logging(args)
     manifest = checked_manifest(args.manifest, args.cycles, args.clock)
     journal_dir = None if args.no_journal or not manifest.journal.enabled else Path(
         args.journal_dir or manifest.journal.directory)
     summary = asyncio.run(_run(manifest, journal_dir)) if manifest.cell.clock is (
-        ClockKind.VIRTUAL) else _run_wall(manifest, journal_dir)
-    _output(summary, args.json_out)
+        ClockKind.VIRTUAL) else run_wall(manifest, journal_dir)
+    output(summary, args.json_out)
     cycles = summary["cycles"]
     return 0 if cycles["verified"] == cycles["attempted"] == manifest.cell.cycles else 1
 
 
-def _configure_logging(args: argparse.Namespace) -> None:
+def configure_logging(args: argparse.Namespace) -> None:
     """Structured log lines go to stderr (stdout may carry the JSON summary)."""
     from kernel.shell.logging import configure_logging
 
@@ -78,11 +78,11 @@ def checked_manifest(path: str | Path, cycles: int | None = None,
         ManifestError: naming the file (or the option) and the key; the CLI exits 2.
     """
     manifest = _with_overrides(load_manifest(path), cycles, clock)
-    _preflight(manifest)
+    preflight(manifest)
     return manifest
 
 
-def _preflight(manifest: Manifest) -> None:
+def preflight(manifest: Manifest) -> None:
     """Every check that needs more than the manifest's own keys, made before any device,
     emulator or server starts: the task's layout against the robot, the clock against the
     driver.
@@ -117,19 +117,20 @@ async def _run(manifest: Manifest, journal_dir: Path | None) -> dict[str, Any]:
         return await run_lockstep(manifest, journal_dir, progress)
 
 
-def _run_wall(manifest: Manifest, journal_dir: Path | None) -> dict[str, Any]:
+def run_wall(manifest: Manifest, journal_dir: Path | None, hook: Any = None) -> dict[str, Any]:
+    """The cell on the wall clock (``hook``: called after each tick, True ends the run)."""
     from kernel.app.live import run_live
     from kernel.app.report import CycleProgress
     from kernel.shell.loop import run
 
     async def main() -> dict[str, Any]:
         with CycleProgress(manifest.cell.cycles) as progress:
-            return await run_live(manifest, journal_dir, progress)
+            return await run_live(manifest, journal_dir, progress, hook)
 
     return run(main())
 
 
-def _output(summary: dict[str, Any], json_out: str | None) -> None:
+def output(summary: dict[str, Any], json_out: str | None) -> None:
     from rich.console import Console
 
     from kernel.app.report import render_summary

@@ -6,7 +6,6 @@ that signed them, the revision of warden that ran them and the machine they ran 
 
 from __future__ import annotations
 
-import hashlib
 import socket
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
@@ -15,12 +14,12 @@ from typing import Any
 REPO = Path(__file__).resolve().parents[1]
 
 
-def provenance(manifest_bytes: bytes, manifest_path: Path, signer: str | None) -> dict[str, Any]:
-    """The header's ``provenance``: ``signer`` is the key id that verified the manifest, or
-    None when nothing verified it (a development run)."""
+def provenance(digest: str, manifest_path: Path, signer: str | None) -> dict[str, Any]:
+    """The header's ``provenance``: ``digest`` the SHA-256 of the manifest bytes that were
+    parsed, ``signer`` the key id that verified them, or None when nothing verified them (a
+    development run)."""
     return {
-        "manifest": {"path": str(manifest_path.resolve()),
-                     "sha256": hashlib.sha256(manifest_bytes).hexdigest()},
+        "manifest": {"path": str(manifest_path.resolve()), "sha256": digest},
         "signer": signer,
         "software": {"version": _version(), "revision": revision()},
         "host": socket.gethostname(),

@@ -17,6 +17,7 @@ from kernel.app.compose import Cell, build_cell, effective, world_for
 from kernel.app.report import CycleProgress
 from kernel.journal import header
 from kernel.manifest import Manifest
+from kernel.provenance import provenance
 from kernel.shell.recorder import Recorder, open_run_files
 from kernel.shell.timer import Clock
 from kernel.summary import CycleResult, RunSummary, percentiles
@@ -57,7 +58,9 @@ def open_run(manifest: Manifest, clock: Clock, journal_dir: Path | None,
         if journal_dir is not None:
             files.directory, files.journal, files.decisions = open_run_files(journal_dir,
                                                                              manifest.name)
-        recorder = Recorder(files.journal, files.decisions, header(sections, manifest.name))
+        head = {**header(sections, manifest.name),
+                "provenance": provenance(manifest.digest, manifest.path, manifest.signer)}
+        recorder = Recorder(files.journal, files.decisions, head)
         cell = build_cell(manifest, config, world, clock, recorder)
     except BaseException:
         world.close()  # an emulator already started must not outlive a failed build

@@ -54,6 +54,8 @@ class OperatorCommand(StrEnum):
     ACCEPT_RECOVERY = "accept-recovery"
     STOP = "stop"
     RESET = "reset"
+    CONFIRM = "confirm"
+    """Starts a bounded trial that waits for a human (warden trial); nothing else."""
 
 
 ACTIONS: dict[OperatorCommand, OperatorAction] = {
@@ -150,6 +152,8 @@ class OperatorServer:
                  pid=caller.pid)
         if command is OperatorCommand.STATUS:
             return {"ok": True, **self.status()}
+        if command is OperatorCommand.CONFIRM:
+            return {"ok": False, "error": "nothing to confirm: the run is already going"}
         self.stats.granted += 1
         return await self._command(command, caller, received_ns)
 
@@ -188,13 +192,74 @@ class OperatorServer:
             event.set()
 
     def _allowed(self, caller: Caller) -> bool:
-        if caller.uid == 0 or caller.gid == self.gid:
-            return True
+        return member(caller, self.gid)
+
+
+def member(caller: Caller, gid: int) -> bool:
+    """Root, or in the group (as its primary group or a supplementary one)."""
+    if caller.uid == 0 or caller.gid == gid:
+        return True
+    try:
+        name = pwd.getpwuid(caller.uid).pw_name
+    except KeyError:
+        return False
+    return gid in os.getgrouplist(name, caller.gid)
+
+
+async def await_confirmation(path: Path, group: str, run: str, timeout_s: float) -> Caller:
+    """Serve the operator socket until a member of ``group`` sends ``confirm`` (a bounded
+    trial starts only then); anything else is answered and refused.
+
+    Raises:
+        TimeoutError: nobody confirmed within ``timeout_s``.
+    """
+    gid = grp.getgrnam(group).gr_gid
+    confirmed: asyncio.Future[Caller] = asyncio.get_running_loop().create_future()
+
+    async def serve(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
         try:
-            name = pwd.getpwuid(caller.uid).pw_name
-        except KeyError:
-            return False
-        return self.gid in os.getgrouplist(name, caller.gid)
+            caller = _caller(writer)
+            line = await asyncio.wait_for(reader.readline(), timeout=2.0)
+            answer = _confirmation(caller, gid, group, line[:_MAX_REQUEST], run, confirmed)
+            writer.write(json.dumps(answer).encode() + b"\n")
+            await writer.drain()
+        except (TimeoutError, ConnectionError, OSError):
+            pass
+        finally:
+            writer.close()
+
+    if path.is_socket():
+        path.unlink()
+    server = await asyncio.start_unix_server(serve, path=str(path))
+    try:
+        os.chown(path, 0 if os.geteuid() == 0 else -1, gid)
+        os.chmod(path, 0o660)
+        async with server:
+            return await asyncio.wait_for(asyncio.shield(confirmed), timeout=timeout_s)
+    finally:
+        server.close()
+        with contextlib.suppress(FileNotFoundError):
+            path.unlink()
+
+
+def _confirmation(caller: Caller, gid: int, group: str, line: bytes, run: str,
+                  confirmed: asyncio.Future[Caller]) -> dict[str, Any]:
+    try:
+        command = OperatorCommand(json.loads(line)["command"])
+    except (ValueError, KeyError, TypeError):
+        return {"ok": False, "error": "not a request"}
+    if not member(caller, gid):
+        log.warning("trial confirmation refused", uid=caller.uid, gid=caller.gid,
+                    pid=caller.pid, reason=f"not in group {group}")
+        return {"ok": False, "error": f"uid {caller.uid} is not in group {group}"}
+    if command is OperatorCommand.STATUS:
+        return {"ok": True, "run": run, "mode": "awaiting confirmation"}
+    if command is not OperatorCommand.CONFIRM:
+        return {"ok": False, "error": f"the trial {run} has not started: confirm it first"}
+    log.info("trial confirmed", run=run, uid=caller.uid, gid=caller.gid, pid=caller.pid)
+    if not confirmed.done():
+        confirmed.set_result(caller)
+    return {"ok": True, "confirmed": run, "uid": caller.uid}
 
 
 def _caller(writer: asyncio.StreamWriter) -> Caller:

@@ -1,0 +1,146 @@
+"""``warden trial MANIFEST``: a bounded trial, started only when everything that bounds it holds.
+
+In order, before anything moves:
+1. the manifest's signature verifies, in this process, on the very bytes that are then parsed
+   (read once, so what was signed is what runs);
+2. it carries a trial envelope (``[trial]``: max cycles, max duration, a workspace box for the
+   tool, a speed scale, a wrist force limit), the state watchdog, and no simulated operator;
+3. the independent safety monitor answers that it is alive, connected and watching;
+4. the trial card says what is bounded, who can stop it and how, and where the journal goes;
+5. a human confirms: at the terminal (typing the run's name), or with
+   ``warden operator confirm`` over the operator socket.
+Then the cell runs with the envelope enforced: every joint's velocity limit is scaled down, the
+core keeps the tool in the box and the wrist force under its limit (ENVELOPE stops the arm and
+ends the trial), and the trial ends when its cycles are done or its duration is up, whichever
+comes first, each with its reason. The journal's header records the manifest's digest, the key
+that signed it, the software revision and the host.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from assurance.reasons import ReasonCode
+from kernel import signing
+from kernel.app.session import RunContext
+from kernel.manifest import Manifest, ManifestError, TrialEnvelope, load_manifest
+from kernel.scenario.config import build_config
+from kernel.scenario.fields import ScenarioError, Where
+
+ENVELOPE_KEYS = ("max_cycles", "max_duration_s", "workspace_lower", "workspace_upper",
+                 "speed_scale", "max_wrist_force_n")
+
+
+def load_trial(path: Path, keys: Path) -> Manifest:
+    """The manifest of a trial: verified, parsed from the verified bytes, with the envelope
+    folded into what the core enforces (scaled velocity limits, the ``envelope`` section) and
+    its cycles capped.
+
+    Raises:
+        ManifestError: not signed by a trusted key, altered, no envelope, no watchdog, a
+            simulated operator (the message names the file and what is wrong).
+    """
+    try:
+        verified = signing.verify(path, keys)
+    except signing.SignatureError as error:
+        raise ManifestError(f"{error} (a trial runs only from a manifest signed by a key in "
+                            f"{keys})") from None
+    manifest = load_manifest(path, content=verified.content, signer=verified.key_id)
+    envelope = manifest.trial
+    if envelope is None:
+        raise ManifestError(f"{path}: trial: missing: a trial needs its envelope "
+                            f"({', '.join(ENVELOPE_KEYS)})")
+    if manifest.core.state_timeout_ns is None:
+        raise ManifestError(f"{path}: timing.state_timeout_ms: missing: a trial needs the "
+                            "state watchdog")
+    if manifest.cell.simulated_operator:
+        raise ManifestError(f"{path}: cell.simulated_operator: must be false in a trial (only a "
+                            "human accepts recovery)")
+    return _bounded(manifest, envelope)
+
+
+def _bounded(manifest: Manifest, envelope: TrialEnvelope) -> Manifest:
+    robot = dict(manifest.sections["robot"])
+    robot["velocity_limits"] = [round(v * envelope.speed_scale, 12) for v in
+                                _arm_velocities(manifest)]
+    sections = {**manifest.sections, "robot": robot, "envelope": {
+        "workspace": {"lower": list(envelope.workspace_lower),
+                      "upper": list(envelope.workspace_upper)},
+        "max_wrist_force_n": envelope.max_wrist_force_n}}
+    try:
+        core = build_config(sections, Where(str(manifest.path), ""))
+    except ScenarioError as error:
+        raise ManifestError(str(error)) from None
+    cell = dataclasses.replace(manifest.cell, cycles=min(manifest.cell.cycles,
+                                                         envelope.max_cycles))
+    return dataclasses.replace(manifest, core=core, sections=sections, cell=cell)
+
+
+def _arm_velocities(manifest: Manifest) -> list[float]:
+    limits = manifest.core.limits
+    return [float(v) for v, arm in zip(limits.velocity, limits.arm_mask, strict=True) if arm]
+
+
+def trial_card(manifest: Manifest, socket: Path, safety: str, journal: Path | None) -> str:
+    """What is bounded, who can stop it and how, where the journal is: shown before a human
+    confirms."""
+    envelope = manifest.trial
+    if envelope is None:  # load_trial refuses such a manifest
+        raise ManifestError(f"{manifest.path}: trial: missing")
+    limits = _arm_velocities(manifest)
+    rows = [
+        ("trial", f"{manifest.name} ({manifest.path}, sha256 {manifest.digest[:16]}, signed "
+                  f"by key {manifest.signer})"),
+        ("cycles", f"at most {manifest.cell.cycles}"),
+        ("duration", f"at most {envelope.max_duration_s:g} s"),
+        ("joint speed", f"x{envelope.speed_scale:g}: at most "
+                        f"{', '.join(f'{v:.3g}' for v in limits)} rad/s"),
+        ("tool workspace", f"{list(envelope.workspace_lower)} to "
+                           f"{list(envelope.workspace_upper)} m (base frame): a setpoint "
+                           "outside is never sent, a measured breach stops the arm"),
+        ("wrist force", f"at most {envelope.max_wrist_force_n:g} N, or the arm stops"),
+        ("stop: a person", "the E-stop wired to the arm's safety system (hold it)"),
+        ("stop: operator", f"warden operator stop|takeover --socket {socket}"),
+        ("stop: safety monitor", safety),
+        ("stop: the device", "its own watchdog stops the arm if warden dies "
+                             "(docs/operations.md, device-side watchdogs)"),
+        ("journal", str(journal) if journal is not None else "none (--no-journal)"),
+    ]
+    width = max(len(name) for name, _ in rows)
+    return "\n".join(f"{name:<{width}}  {text}" for name, text in rows)
+
+
+@dataclass
+class TrialBound:
+    """Ends a running trial when a bound is reached (the live run's tick hook)."""
+
+    duration_s: float
+    reason: str = ""
+
+    def __call__(self, context: RunContext) -> bool:
+        state = context.cell.core.state
+        if state.fallback.cause is ReasonCode.ENVELOPE:
+            self.reason = "the envelope was reached (ENVELOPE): the arm stopped"
+        elif context.cell.gateway.now_ns() * 1e-9 >= self.duration_s:
+            self.reason = f"the trial's duration is up ({self.duration_s:g} s)"
+        return bool(self.reason)
+
+
+def verdict(summary: dict[str, Any], bound: TrialBound) -> tuple[int, str]:
+    """The trial's exit code and why: 0 every cycle verified within its bounds, 1 otherwise."""
+    cycles = summary["cycles"]
+    if bound.reason:
+        return 1, f"ended: {bound.reason}"
+    if cycles["attempted"] and cycles["verified"] == cycles["attempted"]:
+        return 0, f"ended: {cycles['verified']} of {cycles['attempted']} cycles verified"
+    return 1, f"ended: {cycles['verified']} of {cycles['attempted']} cycles verified"
+
+
+SafetyCheck = Callable[[Manifest], str]
+"""Answers what the safety monitor watches (shown on the card), or raises ManifestError when
+it is not alive, connected and watching."""
+

@@ -1,0 +1,103 @@
+"""``warden trial MANIFEST``: a bounded trial (kernel/app/trial.py says what that takes).
+
+Exit codes: 0 every cycle verified inside the envelope; 1 the trial ended on a bound (the
+envelope, its duration) or a cycle did not verify; 2 it did not start: a signature that does
+not verify, no envelope, no watchdog, no safety monitor, nobody confirmed (the message names
+what is wrong; nothing moved).
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import grp
+import os
+import sys
+from pathlib import Path
+from typing import Any
+
+import structlog
+
+from kernel.app.trial import TrialBound, load_trial, trial_card, verdict
+from kernel.cli_run import configure_logging, output, preflight, run_wall
+from kernel.manifest import Manifest, ManifestError
+from kernel.shell.operator import await_confirmation, socket_path
+from kernel.signing import DEFAULT_KEYS_DIR
+
+log = structlog.get_logger("warden.trial")
+
+
+def add_commands(commands: Any) -> None:
+    trial = commands.add_parser(
+        "trial", help="a bounded trial from a signed manifest, after a human confirms",
+        description="Verify the manifest's signature, check its trial envelope and the safety "
+                    "monitor, show the trial card, wait for a human to confirm, then run the "
+                    "cell inside the envelope.")
+    trial.add_argument("manifest")
+    trial.add_argument("--keys", default=str(DEFAULT_KEYS_DIR),
+                       help=f"trusted public keys (default {DEFAULT_KEYS_DIR})")
+    trial.add_argument("--journal-dir", help="where run directories go (default: the manifest's)")
+    trial.add_argument("--confirm-timeout", type=float, default=300.0,
+                       help="seconds to wait for `warden operator confirm` (no terminal)")
+    trial.add_argument("--json", dest="json_out", metavar="FILE",
+                       help="also write the summary as JSON to FILE ('-' for stdout)")
+    trial.add_argument("--log-format", choices=("auto", "json", "console"), default="auto")
+    trial.add_argument("--log-level", default="INFO")
+    trial.set_defaults(handler=trial_command)
+
+
+def trial_command(args: argparse.Namespace) -> int:
+    configure_logging(args)
+    if not 0 < args.confirm_timeout <= 86_400:
+        raise ManifestError("--confirm-timeout: must be more than 0 and at most a day")
+    manifest = load_trial(Path(args.manifest), Path(args.keys))
+    preflight(manifest)
+    safety = safety_watching(manifest)
+    journal = Path(args.journal_dir or manifest.journal.directory) if (
+        manifest.journal.enabled) else None
+    socket = socket_path(manifest.operator.socket)
+    print(trial_card(manifest, socket, safety, journal), file=sys.stderr)
+    _confirmed(manifest, socket, args.confirm_timeout)
+    bound = TrialBound(manifest.trial.max_duration_s if manifest.trial else 0.0)
+    summary = run_wall(manifest, journal, bound)
+    code, why = verdict(summary, bound)
+    summary["trial"] = {"ended": why, "signer": manifest.signer, "digest": manifest.digest}
+    output(summary, args.json_out)
+    print(f"warden: trial {manifest.name}: {why}", file=sys.stderr)
+    return code
+
+
+def _confirmed(manifest: Manifest, socket: Path, timeout_s: float) -> None:
+    """A human says go: typing the run's name at the terminal, or `warden operator confirm`.
+
+    Raises:
+        ManifestError: nobody confirmed (the trial does not start; nothing moved).
+    """
+    if sys.stdin.isatty():
+        typed = input(f"type {manifest.name} to start the trial (anything else cancels): ")
+        if typed.strip() != manifest.name:
+            raise ManifestError(f"{manifest.path}: trial: not confirmed at the terminal")
+        log.info("trial confirmed", run=manifest.name, uid=os.getuid(), via="terminal")
+        return
+    group = manifest.operator.group or grp.getgrgid(os.getegid()).gr_name
+    print(f"waiting {timeout_s:g} s for `warden operator confirm --socket {socket}`",
+          file=sys.stderr)
+    try:
+        asyncio.run(await_confirmation(socket, group, manifest.name, timeout_s))
+    except TimeoutError:
+        raise ManifestError(f"{manifest.path}: trial: nobody confirmed within {timeout_s:g} s "
+                            f"(warden operator confirm --socket {socket})") from None
+    except (OSError, KeyError) as error:
+        raise ManifestError(f"{manifest.path}: operator.socket: cannot wait for a confirmation "
+                            f"at {socket}: {error}") from None
+
+
+def safety_watching(manifest: Manifest) -> str:
+    """What the independent safety monitor watches, for the card.
+
+    Raises:
+        ManifestError: it is not alive, connected and watching this cell.
+    """
+    from kernel.safety.status import require_watching
+
+    return require_watching(manifest)
