@@ -1,4 +1,4 @@
-"""Time arithmetic of the chunk contract (docs/contract.md §2, seed §3.1).
+"""Time arithmetic of the chunk contract (docs/contract.md §2).
 
 All times are integer nanoseconds on the client's monotonic clock unless a name says otherwise.
 Scenario files and journals carry milliseconds; the conversion happens at their edge only.

@@ -1,4 +1,4 @@
-"""The fallback state machine (docs/contract.md §6, seed §5), as a table.
+"""The fallback state machine (docs/contract.md §6), as a table.
 
 Every transition names its trigger (a reason code), the states it may leave, its debounce,
 the owner of motion afterwards, what happens to the queue, the command the controller gets, and

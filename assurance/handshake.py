@@ -1,4 +1,4 @@
-"""The compatibility handshake (docs/contract.md §5, seed §6.3).
+"""The compatibility handshake (docs/contract.md §5).
 
 Before the first chunk of a session the client states its side (:class:`ClientHello`), the server
 offers its side (:class:`HandshakeOffer`), and the client decides: ``ACCEPT`` with a fingerprint

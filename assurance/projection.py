@@ -1,4 +1,4 @@
-"""Joint-space feasibility projection (seed §2): ``a_sent = Π_C(s)(a_proposed)``.
+"""Joint-space feasibility projection: ``a_sent = Π_C(s)(a_proposed)``.
 
 A chunk is a sequence of joint setpoints on its own action grid (spacing ``dt``). The admissible
 set keeps every setpoint inside the position limits, every step inside the velocity limit, every

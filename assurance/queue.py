@@ -1,4 +1,4 @@
-"""The time-indexed action queue (seed §3.2).
+"""The time-indexed action queue.
 
 Admitted chunks become *segments*: projected rows on the chunk's own action grid, each row due
 at ``first_due + row·dt`` and in force until the next row is due. A later segment supersedes an

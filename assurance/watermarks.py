@@ -1,4 +1,4 @@
-"""Low/high watermarks with hysteresis (seed §3.2): when to ask the policy for a new chunk.
+"""Low/high watermarks with hysteresis: when to ask the policy for a new chunk.
 
 Watermarks manage throughput, never safety: they decide when to *request*, not what may run.
 Depth is measured in time (how long the queue can still feed the controller), because the low

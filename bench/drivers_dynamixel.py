@@ -7,7 +7,7 @@ Two measurements:
 - control rate: cycles paced at 100/250/500/1000 Hz with absolute deadlines. A rate counts as
   sustainable when the loop achieved at least 98 % of it and fewer than 1 % of cycles were busy
   for longer than one period. Pacing uses ``asyncio.sleep`` (uvloop when installed), whose timer
-  has whole-millisecond resolution (shared/notes/loop-timing.md), so at 1 kHz the loop timer
+  has whole-millisecond resolution (bench/loop.py measures it), so at 1 kHz the loop timer
   rather than the bus may be what fails.
 
 The emulator answers in Python on the same two cores, so these numbers bound a real bus from

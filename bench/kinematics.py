@@ -10,7 +10,7 @@ the cell).
     .venv/bin/python bench/kinematics.py [--samples N]
 
 A benchmark, not a test: it prints figures and asserts nothing. Hot-loop numbers; expect
-several times more inside a busy control loop (see /work/shared/notes/loop-timing.md).
+several times more inside a busy control loop (bench/loop.py measures it).
 """
 
 from __future__ import annotations

@@ -1,1 +1,1 @@
-"""Robot drivers behind one async protocol (DESIGN.md §5), managed by a kernel-owned lifecycle."""
+"""Robot drivers behind one async protocol (docs/architecture.md, "Drivers"), managed by a kernel-owned lifecycle."""

@@ -1,4 +1,4 @@
-"""The tabletop assembly cycle's phase contract cards (seed §6.1), as data.
+"""The tabletop assembly cycle's phase contract cards, as data.
 
 One card per step: who proposes, who approves, who executes, what must be fresh, and what
 happens when it fails. The cell's task phases are coarser than the steps: acquire, grasp and

@@ -1,4 +1,4 @@
-"""Task phases and their contract cards (seed §6.1): who proposes, who executes, how fresh.
+"""Task phases and their contract cards: who proposes, who executes, how fresh.
 
 The card is data. The runtime reads it to decide whether a phase takes learned proposals and
 who owns motion when no proposal is running; the gates read its :class:`PhasePolicy`.

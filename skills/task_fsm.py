@@ -1,4 +1,4 @@
-"""The task FSM (docs/contract.md §6, seed §1.2): phases advance on evidence, never on confidence.
+"""The task FSM (docs/contract.md §6): phases advance on evidence, never on confidence.
 
 ``IDLE → VALIDATE → FREE_SPACE → PRE_CONTACT → CONTACT → VERIFY → RETREAT`` with
 ``SAFE_HOLD ↔ HUMAN_RECOVERY → ABORT``. A guarded transition needs every piece of its evidence,

@@ -19,7 +19,7 @@ from skills.phases import PhaseBook, TaskPhase
 
 @dataclass(frozen=True, slots=True)
 class ClientSide:
-    """What this client states in its handshake (CONTRACT.md §5), minus the queue epoch."""
+    """What this client states in its handshake (docs/contract.md §5), minus the queue epoch."""
 
     skill: str
     skill_version: str

@@ -1,4 +1,4 @@
-"""Decision-log lines (CONTRACT.md §7) as frozen msgspec Structs, one kind per class.
+"""Decision-log lines (docs/contract.md §7) as frozen msgspec Structs, one kind per class.
 
 Field order is fixed by the class, ``kind`` comes first, and optional fields are omitted when
 unset, so the same decisions always encode to the same bytes. ``t`` is in milliseconds.

@@ -1,4 +1,4 @@
-"""The control tick: who owns this period, and what goes out (CONTRACT.md §4, §7).
+"""The control tick: who owns this period, and what goes out (docs/contract.md §4, §7).
 
 Outside RUNNING the fallback state decides (hold, retreat, stop, human). In RUNNING the phase's
 executor decides: a policy phase sends the queued action in force, or holds at the measured

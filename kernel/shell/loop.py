@@ -1,7 +1,7 @@
 """Event loop selection: uvloop when installed, else the stock loop with one clear warning.
 
-The measured tail of a 500 Hz loop is several times worse on the stock loop
-(shared/notes/loop-timing.md), so falling back is allowed but never silent.
+The measured tail of a 500 Hz loop is several times worse on the stock loop (bench/loop.py
+measures both), so falling back is allowed but never silent.
 """
 
 from __future__ import annotations

@@ -2,7 +2,7 @@
 
 Each setting is optional and none of them raises: :func:`try_realtime` returns a
 :class:`RealtimeReport` saying what took effect and, for what did not, one human sentence the
-caller can log as a single line. The timing notes (shared/notes/loop-timing.md) show SCHED_FIFO
+caller can log as a single line. The timing notes (bench/loop.py measures it) show SCHED_FIFO
 on the loop thread is what takes the 500 Hz tail from ~1 ms to a few hundred microseconds, so a
 deployment that silently runs without it must at least say so.
 """

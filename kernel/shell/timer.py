@@ -1,6 +1,6 @@
 """Fixed-rate timers for the control loop: a Linux timerfd one and a virtual one for lockstep runs.
 
-asyncio and libuv timers have whole-millisecond resolution (docs: shared/notes/loop-timing.md),
+asyncio and libuv timers have whole-millisecond resolution (bench/loop.py measures it),
 which is a third of a 500 Hz period. A timerfd armed at an absolute CLOCK_MONOTONIC deadline and
 watched with ``loop.add_reader`` wakes the loop within microseconds, on the stock loop and on
 uvloop alike. Optionally it fires ``early_ns`` before the deadline and busy-waits the remainder,

@@ -1,4 +1,4 @@
-"""The fallback state machine (docs/contract.md §6, seed §5): examples of debounce, recovery,
+"""The fallback state machine (docs/contract.md §6): examples of debounce, recovery,
 E_STOP and refusal triggers. Every rule, from every state, is in test_fallback_table.py."""
 
 from __future__ import annotations

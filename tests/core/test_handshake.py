@@ -1,4 +1,4 @@
-"""The compatibility handshake (docs/contract.md §5, seed §6.3)."""
+"""The compatibility handshake (docs/contract.md §5)."""
 
 from __future__ import annotations
 

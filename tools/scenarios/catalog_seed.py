@@ -1,4 +1,5 @@
-"""The seed's worked stale-chunk trace (seed §4), shifted by +50 ms so that C40 fits before it."""
+"""The worked stale-chunk trace (a chunk that arrives after the robot entered contact, and its
+resend after a reconnect), shifted by +50 ms so that C40 fits before it."""
 
 from __future__ import annotations
 
