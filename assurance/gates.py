@@ -3,8 +3,8 @@
 Every gate is a pure function of the chunk and an :class:`AdmissionContext` snapshot and returns
 the reason codes that apply; the caller evaluates all of them and lists every reason, so a
 refusal explains itself completely (the stale chunk of ``seed_stale_chunk.json`` is
-``PHASE_MISMATCH + STATE_DIVERGED``, not merely late). Feasibility is the last gate and lives with the merge, since
-it must run on the sequence that would actually be queued.
+``PHASE_MISMATCH + STATE_DIVERGED``, not merely late). Feasibility is the last gate and lives
+with the merge, since it must run on the sequence that would actually be queued.
 """
 
 from __future__ import annotations

@@ -1,1 +1,2 @@
-"""Robot drivers behind one async protocol (docs/architecture.md, "Drivers"), managed by a kernel-owned lifecycle."""
+"""Robot drivers behind one async protocol, managed by a kernel-owned lifecycle
+(docs/architecture.md, "Drivers")."""
