@@ -27,7 +27,7 @@ from kernel.manifest import Manifest
 from kernel.shell.client import RobotClient
 from kernel.shell.link_types import ClientConfig
 from kernel.shell.realtime import restore, try_realtime
-from kernel.shell.supervisor import RestartPolicy, Supervisor
+from kernel.shell.supervisor import RestartPolicy, Supervisor, describe, failure_fields
 from kernel.shell.systemd import ServiceNotifier
 from kernel.shell.timer import MonotonicClock, PeriodicTimer
 from kernel.shell.worker import JobWorker
@@ -170,8 +170,8 @@ def task_failed(context: RunContext, failures: list[str], name: str,
     """A supervised task died: never silently. A dead policy link is a lost link for the core
     (LINK_LOST → DEGRADED: the arm holds until a new handshake); the critical tasks (control,
     recorder) end the run, and the run's shutdown holds the arm and closes the device."""
-    failures.append(f"{name}: {type(error).__name__}")
-    log.error("task failed", task=name, error=type(error).__name__)
+    failures.append(f"{name}: {describe(error)}")
+    log.error("task failed", task=name, **failure_fields(error))
     if name == "policy-link":
         gateway = context.cell.gateway
         gateway.feed(LinkEvent(t=gateway.now_ns(), status="down"))
