@@ -63,7 +63,7 @@ class _Link:
     offer: asyncio.Future[wire.Offer]
     accepted: bool = False
     version: int | None = None
-    pong: asyncio.Future[tuple[int, int]] | None = None
+    pong: asyncio.Future[tuple[wire.ClockPong, int]] | None = None
     """The answer to the one ping in flight (pings of a burst go one at a time)."""
     ping_seq: int = 0
 
@@ -242,13 +242,16 @@ class RobotClient:
         try:
             await self._send(link, wire.ClockPing(seq=link.ping_seq, t0=t0))
             async with asyncio.timeout(self.config.clock_ping_timeout_s):
-                t_server, t1 = await answer
+                pong, t1 = await answer
+            sample = wire.clock_sample(t0, pong, t1)
         except TimeoutError as error:
             raise _LinkEnded(ByeReason.CLOCK_TIMEOUT, "clock ping unanswered") from error
+        except ProtocolViolation as error:  # an implausible clock: never fed to the core
+            raise self._violation(error) from error
         finally:
             link.pong = None
         self.counters.clock_round_trips += 1
-        return ClockSample(t0=t0, t_server=t_server, t1=t1)
+        return sample
 
     async def _refresh_clock(self, link: _Link) -> None:
         while True:
@@ -297,8 +300,7 @@ class RobotClient:
         except ConnectionClosed as error:
             raise self._closed(error) from error
         except ProtocolViolation as error:
-            self.counters.protocol_violations += 1
-            raise _LinkEnded(error.reason, error.detail) from error
+            raise self._violation(error) from error
         raise _LinkEnded(None, "closed by the server")
 
     def _dispatch(self, link: _Link, data: bytes | str, t_receive: int) -> None:
@@ -335,7 +337,7 @@ class RobotClient:
     def _on_pong(self, link: _Link, pong: wire.ClockPong, t_receive: int) -> None:
         # a pong for a ping that already timed out carries no usable sample: dropped
         if link.pong is not None and pong.seq == link.ping_seq and not link.pong.done():
-            link.pong.set_result((pong.t_server, t_receive))
+            link.pong.set_result((pong, t_receive))
 
     # -- helpers ---------------------------------------------------------------------------
 
@@ -347,6 +349,10 @@ class RobotClient:
             raise self._closed(error) from error
         self.counters.frames_out += 1
         self.counters.bytes_out += len(data)
+
+    def _violation(self, error: ProtocolViolation) -> _LinkEnded:
+        self.counters.protocol_violations += 1
+        return _LinkEnded(error.reason, error.detail)
 
     @staticmethod
     def _closed(error: ConnectionClosed) -> _LinkEnded:

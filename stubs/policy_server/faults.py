@@ -14,7 +14,9 @@ Two kinds of fault:
   (``unknown_type_after``), a clean close (``close_after``) or total silence, heartbeats included
   (``stall_after``).
 
-And: ``checkpoint`` (every chunk claims another checkpoint than the one offered),
+And: ``clock_t_server`` (every clock pong on an affected connection claims this server time,
+however implausible: ``18446744073709551615`` is 2**64 - 1),
+``checkpoint`` (every chunk claims another checkpoint than the one offered),
 ``chunk_before_offer`` (a chunk sent before the handshake), ``resend_on_reconnect`` (after a new
 handshake, first resend the last N chunks produced before it, dropped ones included).
 """
@@ -43,6 +45,7 @@ class FaultConfig:
     nonfinite: float = 0.0
     wrong_dim: float = 0.0
     checkpoint: str | None = None
+    clock_t_server: int | None = None
     garbage_frame_after: int | None = None
     oversized_after: int | None = None
     unknown_type_after: int | None = None

@@ -212,7 +212,9 @@ class _Connection:
             raise ProtocolViolation(f"a client does not send {kind}")
         message = decode_body(frame, kind)
         if isinstance(message, ClockPing):
-            await self._send(ClockPong(seq=message.seq, t0=message.t0, t_server=t))
+            hostile = self.config.faults.clock_t_server if self.faulty else None
+            await self._send(ClockPong(seq=message.seq, t0=message.t0,
+                                       t_server=t if hostile is None else hostile))
         elif isinstance(message, Hello):
             await self._on_hello(message)
         elif isinstance(message, Decision):
