@@ -4,8 +4,7 @@ Order of work for one chunk: decode result → duplicate check (a duplicate is i
 nothing) → does a new chunk answer a pending observation (one already answered by an admitted
 chunk is refused at once, ``OBSERVATION_ANSWERED``, with no other work) → content, identity,
 context, time and divergence gates → merge plan and projection (feasibility) → decision. Only
-an admitted chunk touches the queue, and it does so by one
-commit of a plan built beforehand.
+an admitted chunk touches the queue, and it does so by one commit of a plan built beforehand.
 
 Two steps may be long (:mod:`kernel.core.jobs`): mapping a Cartesian chunk to joint targets and
 the exact projection of a proposal that fails the fast check. For those the chunk is parked and
