@@ -54,8 +54,9 @@ from kernel.core.lines import ChunkLine, Line
 from kernel.core.runtime import Core
 from kernel.scenario.config import build_config
 from kernel.scenario.fields import Where
-from kernel.shell.client import ADMITTED, RobotClient
+from kernel.shell.client import RobotClient
 from kernel.shell.link_types import ClientConfig, RobotSample
+from kernel.summary import ADMITTED
 from stubs.policy_server import ServerConfig
 from stubs.process import EmulatorProcess
 from tools.scenarios.base import ScenarioSpec, offer

@@ -6,8 +6,15 @@ through a :class:`Gateway` the shell implements: the client turns frames into ev
 core's answer decides what happens next (only its ``ACCEPT`` opens a session; its chunk lines
 are the admissions). Per connection: clock-sync burst, Hello, Offer → core → Decision, then
 observations on request, chunks in, heartbeats both ways. Any end of a connection feeds
-``LinkEvent(down)``; the client reconnects with bounded exponential backoff and always
-handshakes again, with the epoch the core started at the link loss.
+``LinkEvent(down)`` first, then says goodbye and closes within a bound; the client reconnects
+with bounded exponential backoff and always handshakes again, with the epoch the core started
+at the link loss. A policy server this run launched is restarted when it falls silent or stops
+accepting connections.
+
+What one peer can cost is bounded (:mod:`kernel.shell.link_budget`): frames and chunks over
+their rates are dropped and counted, chunks wait in a queue of one burst for an admission slot
+the control loop hands out (:class:`AdmissionPacer`), and at most so many observations are in
+flight.
 
 Expected failures (refused connections, closed sockets, protocol violations, silence, a
 rejected handshake) end the connection cleanly and are counted. Anything else is a bug and
@@ -21,27 +28,44 @@ import contextlib
 import itertools
 import time
 from dataclasses import dataclass
+from enum import StrEnum
 
 import msgspec
+import structlog
 from websockets.asyncio.client import ClientConnection, connect
 from websockets.exceptions import ConnectionClosed, InvalidHandshake
 
-from assurance.envelope import MalformedChunk, decode_wire_chunk
 from assurance.handshake import HandshakeDecision
 from kernel import wire
 from kernel.core import events as ev
 from kernel.core.effects import EndSession, RequestObservation
-from kernel.core.lines import ChunkLine, HandshakeLine
+from kernel.core.lines import HandshakeLine
+from kernel.shell.link_budget import AdmissionPacer, RequestWindow, TokenBucket
+from kernel.shell.link_intake import ChunkIntake
 from kernel.shell.link_types import (
     ClientConfig,
     Gateway,
+    LaunchedServer,
     LinkCounters,
     LinkState,
 )
-from kernel.summary import ADMITTED
-from kernel.wire import ByeReason, ClockSample, Frame, Message, MessageType, ProtocolViolation
+from kernel.shell.supervisor import describe
+from kernel.wire import ByeReason, ClockSample, Message, MessageType, ProtocolViolation
 
 _CLOSE_TOO_BIG = 1009
+_SILENCE = frozenset({ByeReason.HEARTBEAT_TIMEOUT, ByeReason.CLOCK_TIMEOUT,
+                      ByeReason.HANDSHAKE_TIMEOUT})
+log = structlog.get_logger("warden.link")
+
+
+class LinkEnd(StrEnum):
+    """How a connection ended, as far as restarting a launched server is concerned."""
+
+    SILENT = "silent"
+    """The peer stopped answering (heartbeat, clock or handshake timeout)."""
+    UNREACHABLE = "unreachable"
+    """No connection could be opened (refused, or no websocket handshake in time)."""
+    OTHER = "other"
 
 
 class _LinkEnded(Exception):
@@ -69,14 +93,22 @@ class _Link:
 
 
 class RobotClient:
-    def __init__(self, config: ClientConfig, gateway: Gateway) -> None:
+    def __init__(self, config: ClientConfig, gateway: Gateway, *,
+                 pacer: AdmissionPacer | None = None,
+                 server: LaunchedServer | None = None) -> None:
         self.config = config
+        self.url = config.url
         self.counters = LinkCounters()
         self.state = LinkState.IDLE
         self.fingerprint: str | None = None
         self.protocol: int | None = None
         self.clock: ClockSample | None = None
         self._gateway = gateway
+        self._server = server
+        self._frames = TokenBucket(config.max_frames_per_s)
+        self._window = RequestWindow(config.max_requests_in_flight, config.request_timeout_s)
+        self._intake = ChunkIntake(gateway, self.counters, config.max_chunks_per_s,
+                                   self._window, pacer, self._admitted)
         self._wanted = asyncio.Event()
         self._end = asyncio.Event()
         self._end_reason = ByeReason.SHUTDOWN
@@ -97,6 +129,9 @@ class RobotClient:
     def _on_request(self, _: RequestObservation) -> None:
         self.request()
 
+    def _admitted(self) -> None:
+        self._healthy = True  # the session worked: the backoff starts from scratch again
+
     def _on_session_end(self, _: EndSession) -> None:
         """The core ended the session (DEGRADED needs a new handshake): reconnect."""
         if self.state is LinkState.ACCEPTED:
@@ -116,7 +151,7 @@ class RobotClient:
         while not self._stopping:
             self._healthy = False
             try:
-                await self._connect_once()
+                ended = await self._connect_once()
             finally:
                 self._report_link(up=False)
             if self._stopping:
@@ -124,51 +159,82 @@ class RobotClient:
             if self._healthy:  # the session worked: the next failure starts from scratch
                 delay = self.config.backoff_initial_s
             self.state = LinkState.BACKOFF
+            await self._revive(ended)
             await self._pause(delay)
             delay = min(delay * 2, self.config.backoff_max_s)
             self.counters.reconnects += 1
         self.state = LinkState.STOPPED
 
+    async def _revive(self, ended: LinkEnd) -> None:
+        """Restart a server this run launched once it stopped answering or accepting."""
+        if self._server is None or ended is LinkEnd.OTHER or self._stopping:
+            return
+        try:
+            self.url = await self._server.restart()
+        except Exception as error:  # a child process that will not start: try again later
+            self.counters.server_restart_failures += 1
+            log.warning("policy server restart failed", detail=describe(error))
+            return
+        self.counters.server_restarts += 1
+        log.info("policy server restarted", after=str(ended))
+
     # -- one connection --------------------------------------------------------------------
 
-    async def _connect_once(self) -> None:
+    async def _connect_once(self) -> LinkEnd:
         self.state = LinkState.CONNECTING
         cfg = self.config
         try:
             async with connect(
-                cfg.url, max_size=cfg.max_frame_bytes, compression=None, ping_interval=None,
+                self.url, max_size=cfg.max_frame_bytes, compression=None, ping_interval=None,
                 open_timeout=cfg.open_timeout_s, close_timeout=cfg.close_timeout_s, proxy=None,
             ) as ws:
-                await self._serve(ws)
+                return await self._serve(ws)
         except (OSError, TimeoutError, InvalidHandshake):
             self.counters.connect_failures += 1  # nothing to close; back off and retry
+            return LinkEnd.UNREACHABLE
 
-    async def _serve(self, ws: ClientConnection) -> None:
+    async def _serve(self, ws: ClientConnection) -> LinkEnd:
         self.counters.connects += 1
         self._report_link(up=True)
         self._end.clear()
         if self._stopping:
             self._end.set()
         link = _Link(ws, time.monotonic(), asyncio.get_running_loop().create_future())
+        self._intake.begin()
+        ended: _LinkEnded | None = None
         try:
             async with asyncio.TaskGroup() as tasks:
                 tasks.create_task(self._read(link))
+                tasks.create_task(self._intake.run())
                 tasks.create_task(self._heartbeat(link))
                 tasks.create_task(self._watch_end())
                 tasks.create_task(self._open_session(link, tasks))
         except* _LinkEnded as group:
-            await self._finish(link, group.exceptions[0])  # type: ignore[arg-type]
+            ended = group.exceptions[0]  # type: ignore[assignment]
+        if ended is None:  # unreachable: every task runs until the link ends
+            return LinkEnd.OTHER
+        self._intake.end()
+        self._report_link(up=False)  # the core first: it never waits for a goodbye
+        await self._finish(link, ended)
+        return LinkEnd.SILENT if ended.bye in _SILENCE else LinkEnd.OTHER
 
     async def _finish(self, link: _Link, ended: _LinkEnded) -> None:
+        """Say goodbye and close, within ``close_timeout_s``; a silent peer is not waited for
+        (its transport is aborted once the goodbye is written)."""
         self.state = LinkState.CLOSING
         self.counters.oversized += ended.oversized  # counted here: once per connection
-        if ended.bye is not None:
-            with contextlib.suppress(ConnectionClosed):
-                bye = wire.Bye(reason=ended.bye, detail=ended.detail[:120])
-                await link.ws.send(wire.encode(bye))
-                self.counters.byes_sent += 1
-        code = 1002 if ended.bye is ByeReason.PROTOCOL_VIOLATION else 1000
-        await link.ws.close(code, str(ended.bye or "closed"))
+        silent = ended.bye in _SILENCE
+        with contextlib.suppress(TimeoutError, ConnectionClosed):
+            async with asyncio.timeout(self.config.close_timeout_s):
+                if ended.bye is not None:
+                    bye = wire.Bye(reason=ended.bye, detail=ended.detail[:120])
+                    await link.ws.send(wire.encode(bye))
+                    self.counters.byes_sent += 1
+                if not silent:
+                    code = 1002 if ended.bye is ByeReason.PROTOCOL_VIOLATION else 1000
+                    await link.ws.close(code, str(ended.bye or "closed"))
+        if link.ws.transport is not None:
+            link.ws.transport.abort()  # no-op once closed; never waits for a silent peer
 
     async def _watch_end(self) -> None:
         await self._end.wait()
@@ -199,6 +265,7 @@ class RobotClient:
     async def _decide(self, link: _Link, offer: wire.Offer) -> None:
         """The core decides; the client only carries its decision back to the server."""
         self._wanted.clear()  # requests made before this handshake are not for its session
+        self._window.clear()
         step = self._gateway.feed(ev.HandshakeEvent(t=self._gateway.now_ns(),
                                                     offer=msgspec.to_builtins(offer.offer)))
         verdict = next((line for line in step.lines if isinstance(line, HandshakeLine)), None)
@@ -259,80 +326,97 @@ class RobotClient:
             await self._sync_clock(link)
             await self._report_clock(link)
 
-    # -- traffic ---------------------------------------------------------------------------
+    # -- observations out ------------------------------------------------------------------
 
     async def _requests(self, link: _Link) -> None:
+        window = self._window
         while True:
             await self._wanted.wait()
+            if not window.open():  # enough in flight: send when one is answered or expires
+                self.counters.requests_waited += 1
+                while not window.open():
+                    window.changed.clear()
+                    with contextlib.suppress(TimeoutError):
+                        async with asyncio.timeout(window.wait_s()):
+                            await window.changed.wait()
             self._wanted.clear()
-            sample = self._gateway.capture_observation()
-            t = self._gateway.now_ns()
-            observation_id = f"{self.config.client_id}/{next(self._observation_ids)}"
-            self._gateway.feed(ev.ObservationEvent(t=t, observation_id=observation_id))
-            epoch = self._gateway.client_side_hello().queue_epoch
-            await self._send(link, wire.Observation(
-                observation_id=observation_id, t_event=t, queue_epoch=epoch,
-                task_phase=str(sample.task_phase), q=wire.vector_payload(sample.q),
-                qd=wire.optional_payload(sample.qd), wrench=wire.optional_payload(sample.wrench),
-                gripper=sample.gripper))
-            self.counters.observations_sent += 1
+            await self._observe(link)
+            self.counters.requests_expired = window.expired
+
+    async def _observe(self, link: _Link) -> None:
+        sample = self._gateway.capture_observation()
+        t = self._gateway.now_ns()
+        observation_id = f"{self.config.client_id}/{next(self._observation_ids)}"
+        self._gateway.feed(ev.ObservationEvent(t=t, observation_id=observation_id))
+        self._window.sent(observation_id)
+        epoch = self._gateway.client_side_hello().queue_epoch
+        await self._send(link, wire.Observation(
+            observation_id=observation_id, t_event=t, queue_epoch=epoch,
+            task_phase=str(sample.task_phase), q=wire.vector_payload(sample.q),
+            qd=wire.optional_payload(sample.qd), wrench=wire.optional_payload(sample.wrench),
+            gripper=sample.gripper))
+        self.counters.observations_sent += 1
 
     async def _heartbeat(self, link: _Link) -> None:
+        """Send a heartbeat every interval; declare the peer silent the moment it has been for
+        ``heartbeat_timeout_s`` (woken at that instant, not at the next heartbeat)."""
         interval, timeout = self.config.heartbeat_interval_s, self.config.heartbeat_timeout_s
+        next_send = time.monotonic() + interval
         for seq in itertools.count(1):
-            await asyncio.sleep(interval)
-            silent = time.monotonic() - link.last_rx
-            if silent > 1.5 * interval:  # the peer's heartbeat (or anything) is overdue
+            while (now := time.monotonic()) < next_send:
+                await asyncio.sleep(min(next_send, link.last_rx + timeout) - now)
+                if time.monotonic() - link.last_rx > timeout:
+                    await self._declare_silence(link, timeout)
+            if now - link.last_rx > 1.5 * interval:  # the peer's heartbeat (or anything) is late
                 self.counters.heartbeat_misses += 1
-            if silent > timeout:
-                self.counters.link_timeouts += 1
-                raise _LinkEnded(ByeReason.HEARTBEAT_TIMEOUT, f"peer silent for {silent:.3f} s")
             await self._send(link, wire.Heartbeat(seq=seq, t_send=self._gateway.now_ns()))
+            next_send += interval
+
+    async def _declare_silence(self, link: _Link, timeout: float) -> None:
+        # After a stall of this loop, frames may sit unread: let the reader run first.
+        for _ in range(3):
+            await asyncio.sleep(0)
+        silent = time.monotonic() - link.last_rx
+        if silent > timeout:
+            self.counters.link_timeouts += 1
+            raise _LinkEnded(ByeReason.HEARTBEAT_TIMEOUT, f"peer silent for {silent:.3f} s")
+
+    # -- frames in -------------------------------------------------------------------------
 
     async def _read(self, link: _Link) -> None:
         try:
             async for data in link.ws:
-                t_receive = self._gateway.now_ns()
                 link.last_rx = time.monotonic()
                 self.counters.frames_in += 1
                 self.counters.bytes_in += len(data)
-                self._dispatch(link, data, t_receive)
+                if not self._frames.take():
+                    self.counters.frames_dropped += 1  # over the frame rate: not even decoded
+                    continue
+                self._dispatch(link, data)
         except ConnectionClosed as error:
             raise self._closed(error) from error
         except ProtocolViolation as error:
             raise self._violation(error) from error
         raise _LinkEnded(None, "closed by the server")
 
-    def _dispatch(self, link: _Link, data: bytes | str, t_receive: int) -> None:
+    def _dispatch(self, link: _Link, data: bytes | str) -> None:
         frame = wire.decode_frame(data)
         kind = wire.message_type(frame, link.version)
         if kind is MessageType.CHUNK:
-            self._on_chunk(link, frame, t_receive)
+            if not link.accepted:  # never let a chunk reach the core outside a session
+                raise ProtocolViolation("chunk before the session was accepted")
+            self._intake.put(frame)
             return
         message = wire.decode_body(frame, kind)
         if isinstance(message, wire.ClockPong):
-            self._on_pong(link, message, t_receive)
+            self._on_pong(link, message, self._gateway.now_ns())
         elif isinstance(message, wire.Offer) and not link.offer.done():
             link.offer.set_result(message)
         elif isinstance(message, wire.Bye):
             self.counters.byes_received += 1
-            raise _LinkEnded(None, f"server said bye: {message.reason}")
+            raise _LinkEnded(None, f"server said bye: {message.reason[:40]}")
         elif not isinstance(message, wire.Heartbeat):
             raise ProtocolViolation(f"unexpected {kind} from the server")
-
-    def _on_chunk(self, link: _Link, frame: Frame, t_receive: int) -> None:
-        if not link.accepted:  # never let a chunk reach the core outside an accepted session
-            raise ProtocolViolation("chunk before the session was accepted")
-        self.counters.chunks_in += 1
-        chunk = decode_wire_chunk(frame.body, t_receive)
-        if isinstance(chunk, MalformedChunk):
-            self.counters.malformed += 1
-        for line in self._gateway.feed(ev.ChunkEvent(t_receive, chunk, bytes(frame.body))).lines:
-            if isinstance(line, ChunkLine):
-                admitted = line.decision in ADMITTED
-                self._healthy |= admitted
-                self.counters.chunks_admitted += admitted
-                self.counters.chunks_refused += not admitted
 
     def _on_pong(self, link: _Link, pong: wire.ClockPong, t_receive: int) -> None:
         # a pong for a ping that already timed out carries no usable sample: dropped
@@ -365,5 +449,3 @@ class RobotClient:
             self._down_reported = not up
             status = "up" if up else "down"
             self._gateway.feed(ev.LinkEvent(t=self._gateway.now_ns(), status=status))
-
-

@@ -3,12 +3,17 @@ nothing the core is fed stops a journal from replaying."""
 
 from __future__ import annotations
 
+import time
+
 import pytest
 
-from kernel.core.events import ClockSyncEvent
+from assurance.reasons import ReasonCode as R
+from kernel.core.events import ChunkEvent, ClockSyncEvent, TickEvent
 from kernel.journal import event_record
 from kernel.scenario.events import parse_events
 from kernel.scenario.fields import Where
+from kernel.shell.link_budget import AdmissionPacer, TokenBucket
+from kernel.shell.link_intake import OTHERS_QUEUED
 from kernel.wire import MAX_CLOCK_OFFSET_NS
 from stubs.policy_server import FaultConfig
 from tests.wire.harness import LoopbackGateway, running, server_config, wait_for
@@ -35,3 +40,90 @@ async def test_an_implausible_clock_pong_is_a_violation_never_a_crash(t_server: 
     syncs = [e for e in link.gateway.events if isinstance(e, ClockSyncEvent)]
     assert syncs and all(abs(sync.offset) <= MAX_CLOCK_OFFSET_NS for sync in syncs)
     journal_round_trip(link.gateway)
+
+
+def _chunk_events(gateway: LoopbackGateway) -> list[ChunkEvent]:
+    return [e for e in gateway.events if isinstance(e, ChunkEvent)]
+
+
+async def test_a_chunk_flood_reaches_the_core_at_the_chunk_rate_and_answers_nothing() -> None:
+    rate = 40.0
+    faults = FaultConfig(flood_chunks_per_s=2000.0)
+    async with running(server_config(faults=faults), max_chunks_per_s=rate,
+                       max_frames_per_s=50_000.0) as link:
+        counters = link.client.counters
+        await wait_for(lambda: counters.chunks_dropped >= 200, "flood chunks dropped")
+        await wait_for(lambda: len(link.gateway.admitted()) >= 4, "answers admitted meanwhile")
+        fed = _chunk_events(link.gateway)
+        refused = link.gateway.refused_with(R.OBSERVATION_ANSWERED)
+        admitted = link.gateway.admitted()
+        seen = counters.snapshot()
+    assert counters.connects == 1, "the flood does not cost the session"
+    # What the bucket lets through beside the expected answers: one burst, then the rate.
+    span_s = (fed[-1].t - fed[0].t) * 1e-9
+    bucket = TokenBucket(rate)
+    assert len(fed) - len(admitted) <= bucket.burst + rate * span_s + 1
+    assert refused, "the repeated answers are refused as answering nothing pending"
+    assert all(line.reasons == (R.OBSERVATION_ANSWERED,) for line in refused)
+    queued = seen["chunks_in"] - len(fed) - seen["chunks_dropped"]
+    assert 0 <= queued <= OTHERS_QUEUED + link.client.config.max_requests_in_flight
+
+
+async def test_frames_over_the_frame_rate_are_dropped_undecoded() -> None:
+    rate = 300.0
+    faults = FaultConfig(flood_chunks_per_s=3000.0)
+    async with running(server_config(faults=faults), max_frames_per_s=rate) as link:
+        counters = link.client.counters
+        await wait_for(lambda: counters.chunks_in > 0, "a first chunk")
+        start_s, decoded_before = time.monotonic(), counters.frames_in - counters.frames_dropped
+        await wait_for(lambda: counters.frames_dropped >= 500, "frames dropped")
+        span_s = time.monotonic() - start_s
+        decoded = counters.frames_in - counters.frames_dropped - decoded_before
+    assert decoded <= TokenBucket(rate).burst + rate * span_s + 1
+
+
+@pytest.mark.parametrize(("faults", "changes", "counter"), [
+    (FaultConfig(big_chunk_rows=2000), {}, "oversized"),  # a 96 kB chunk: over 64 KiB
+    (FaultConfig(junk_frame_bytes=1_000_000), {}, "oversized"),
+    (FaultConfig(junk_frame_bytes=4_000), {}, "protocol_violations"),
+    (FaultConfig(big_chunk_rows=200), {"max_frame_bytes": 4096}, "oversized"),
+], ids=["big_chunk", "junk_1MB", "junk_4kB", "configured_limit"])
+async def test_an_oversized_or_junk_frame_ends_the_connection_unread(
+    faults: FaultConfig, changes: dict[str, int], counter: str
+) -> None:
+    async with running(server_config(faults=faults), **changes) as link:
+        counters = link.client.counters
+        await wait_for(lambda: getattr(counters, counter) >= 1, counter)
+        await wait_for(lambda: len(link.gateway.admitted()) >= 2, "a sane second session")
+    assert all(len(event.frame or b"") < 4096 for event in _chunk_events(link.gateway))
+    journal_round_trip(link.gateway)
+
+
+async def test_requests_in_flight_are_bounded_when_nothing_answers() -> None:
+    limit = 3
+    async with running(server_config(faults=FaultConfig(drop=1.0)),
+                       max_requests_in_flight=limit, request_timeout_s=0.15) as link:
+        counters = link.client.counters
+        await wait_for(lambda: counters.requests_expired >= 2 * limit, "expired requests")
+        sent, expired = counters.observations_sent, counters.requests_expired
+    assert counters.requests_waited >= 1
+    assert sent <= limit + expired + 1  # +1: the request on its way out as we looked
+
+
+async def test_admissions_run_at_most_the_paced_number_per_control_period() -> None:
+    pacer = AdmissionPacer(per_period=1, reserve_ns=1_000_000)
+    faults = FaultConfig(flood_chunks_per_s=2000.0)
+    async with running(server_config(faults=faults), pacer=pacer,
+                       max_frames_per_s=50_000.0, max_chunks_per_s=1000.0) as link:
+        await wait_for(lambda: len(_chunk_events(link.gateway)) >= 100, "many admissions")
+        await wait_for(lambda: len(link.gateway.admitted()) >= 3, "answers admitted")
+        events = list(link.gateway.events)
+    per_period, most = 0, 0
+    for event in events:
+        if isinstance(event, TickEvent):
+            per_period = 0
+        elif isinstance(event, ChunkEvent):
+            per_period += 1
+            most = max(most, per_period)
+    assert most == 1
+    assert link.client.counters.admissions_deferred > 0

@@ -4,7 +4,8 @@ resent by the server refused for their epoch."""
 from __future__ import annotations
 
 from assurance.reasons import ReasonCode as R
-from kernel.core.events import HandshakeEvent, LinkEvent
+from kernel.core.events import ChunkEvent, HandshakeEvent, LinkEvent
+from kernel.core.lines import TransitionLine
 from stubs.policy_server import FaultConfig
 from tests.wire.harness import running, server_config, wait_for
 
@@ -58,3 +59,22 @@ async def test_server_gone_then_back_the_client_keeps_trying() -> None:
     downs = link.gateway.link_events("down")
     assert len(downs) >= 3
     assert link.client.counters.reconnects >= 3
+
+
+async def test_a_silent_server_is_a_lost_link_within_the_heartbeat_timeout() -> None:
+    # docs/protocol.md: the core learns of a silent peer heartbeat_timeout_s after its last
+    # frame (plus the loop's latency), before any goodbye or close handshake with it.
+    timeout_s = 0.15
+    async with running(server_config(faults=FaultConfig(stall_after=2)),
+                       heartbeat_timeout_s=timeout_s) as link:
+        await wait_for(lambda: link.gateway.link_events("down"), "the link declared lost")
+        events = list(link.gateway.events)
+        transitions = [line for line in link.gateway.lines
+                       if isinstance(line, TransitionLine) and line.machine == "fallback"]
+    down = next(i for i, e in enumerate(events) if isinstance(e, LinkEvent) and e.status == "down")
+    last_chunk = next(e for e in reversed(events[:down]) if isinstance(e, ChunkEvent))
+    silent_s = (events[down].t - last_chunk.t) * 1e-9
+    assert timeout_s - 0.01 <= silent_s <= timeout_s + 0.1
+    assert link.client.counters.link_timeouts == 1
+    # so the starved queue never escalated first: DEGRADED, which a new handshake recovers
+    assert (transitions[0].to, transitions[0].trigger) == ("DEGRADED", R.LINK_LOST)
