@@ -66,6 +66,7 @@ class EmulatorProcess:
             return
         if self._proc.poll() is None:
             os.killpg(self._proc.pid, signal.SIGTERM)
+            os.killpg(self._proc.pid, signal.SIGCONT)  # a stopped child acts on SIGTERM only now
             try:
                 self._proc.wait(timeout=timeout_s)
             except subprocess.TimeoutExpired:

@@ -3,11 +3,18 @@ resent by the server refused for their epoch."""
 
 from __future__ import annotations
 
+import asyncio
+import dataclasses
+import os
+import signal
+
 from assurance.reasons import ReasonCode as R
 from kernel.core.events import ChunkEvent, HandshakeEvent, LinkEvent
 from kernel.core.lines import TransitionLine
+from kernel.shell.client import RobotClient
 from stubs.policy_server import FaultConfig
-from tests.wire.harness import running, server_config, wait_for
+from stubs.process import EmulatorProcess
+from tests.wire.harness import LoopbackGateway, client_config, running, server_config, wait_for
 
 
 async def test_server_disconnect_reconnects_with_a_new_epoch() -> None:
@@ -78,3 +85,56 @@ async def test_a_silent_server_is_a_lost_link_within_the_heartbeat_timeout() -> 
     assert link.client.counters.link_timeouts == 1
     # so the starved queue never escalated first: DEGRADED, which a new handshake recovers
     assert (transitions[0].to, transitions[0].trigger) == ("DEGRADED", R.LINK_LOST)
+
+
+class _LaunchedServer:
+    """A reference server in a subprocess that this test 'launched': the client may restart it
+    (as kernel/app/live.py restarts the one a run launched)."""
+
+    ARGS = ("--host", "127.0.0.1", "--port", "0", "--latency-median-ms", "2",
+            "--latency-p95-ms", "4", "--heartbeat-interval", "0.05", "--max-speed", "0.1")
+
+    def __init__(self) -> None:
+        self.process: EmulatorProcess | None = None
+        self.pids: list[int] = []
+
+    def start(self) -> str:
+        self.process = EmulatorProcess("stubs.policy_server", *self.ARGS).start()
+        self.pids.append(self.process.pid)
+        return f"ws://127.0.0.1:{self.process.info['port']}"
+
+    def stop(self) -> None:
+        if self.process is not None:
+            self.process.stop()
+
+    async def restart(self) -> str:
+        await asyncio.to_thread(self.stop)
+        return await asyncio.to_thread(self.start)
+
+
+async def test_a_launched_server_that_hangs_is_restarted_and_the_session_resumes() -> None:
+    server = _LaunchedServer()
+    url = await asyncio.to_thread(server.start)
+    gateway = LoopbackGateway()
+    client = RobotClient(dataclasses.replace(client_config(0), url=url,
+                                             heartbeat_timeout_s=0.15), gateway, server=server)
+    gateway.client = client
+    stop = asyncio.Event()
+    try:
+        async with asyncio.TaskGroup() as tasks:
+            tasks.create_task(client.run())
+            tasks.create_task(gateway.run_ticks(stop))
+            try:
+                await wait_for(lambda: len(gateway.admitted()) >= 3, "a working session")
+                os.kill(server.pids[0], signal.SIGSTOP)  # hung, not dead: only silence tells
+                await wait_for(lambda: client.counters.server_restarts >= 1, "a restart", 20.0)
+                await wait_for(lambda: client.counters.handshakes_accepted >= 2, "a new session")
+                admitted = len(gateway.admitted())
+                await wait_for(lambda: len(gateway.admitted()) > admitted, "chunks again")
+            finally:
+                stop.set()
+                client.stop()
+    finally:
+        await asyncio.to_thread(server.stop)
+    assert len(server.pids) == 2 and client.counters.link_timeouts >= 1
+    assert len(gateway.link_events("down")) >= 1
