@@ -16,7 +16,8 @@ Two kinds of fault:
 
 Floods, on the affected connections once a session is accepted (what a misbehaving server
 costs the robot side): ``flood_chunks_per_s`` (that many extra chunks a second, each the last
-answer again under a new chunk id and sequence, so it cites an observation already answered),
+answer again under a new chunk id and sequence, so it cites an observation already answered;
+before the first answer, a chunk citing an observation never sent),
 ``junk_frame_bytes`` (a frame of that many bytes that is not an envelope, ``junk_frames_per_s``
 times a second), ``big_chunk_rows`` (every answer carries that many actions: 20000 rows of 6
 float64 are a 960 kB chunk).
@@ -174,17 +175,15 @@ def unknown_type_frame() -> bytes:
 Send = Callable[[bytes], Awaitable[None]]
 
 
-async def flood_chunks(per_s: float, last: Callable[[], ChunkEnvelope | None],
+async def flood_chunks(per_s: float, last: Callable[[], ChunkEnvelope],
                        next_sequence: Callable[[int], int], send: Send) -> None:
-    """The last answer again, ``per_s`` times a second, each under a new id and sequence
-    (sent in batches every 10 ms; nothing until a first answer exists)."""
+    """The chunk ``last()`` returns, ``per_s`` times a second, each under a new id and
+    sequence (sent in batches every 10 ms)."""
     batch_s = 0.01
     owed = 0.0
     while True:
         await asyncio.sleep(batch_s)
         chunk = last()
-        if chunk is None:
-            continue
         owed += per_s * batch_s
         for _ in range(int(owed)):
             sequence = next_sequence(chunk.queue_epoch)

@@ -275,8 +275,9 @@ class _Connection:
         if not self.faulty or self.tasks is None:
             return
         if faults.flood_chunks_per_s > 0:
+            unsolicited = self._unsolicited_envelope()  # until there is a last answer
             self.tasks.create_task(flood_chunks(
-                faults.flood_chunks_per_s, lambda: self.last_chunk,
+                faults.flood_chunks_per_s, lambda: self.last_chunk or unsolicited,
                 self.server.next_sequence, self._send_chunk))
         if faults.junk_frame_bytes > 0:
             self.tasks.create_task(flood_junk(faults.junk_frame_bytes, faults.junk_frames_per_s,
@@ -364,13 +365,17 @@ class _Connection:
             raise _Closed(ByeReason.FAULT_INJECTED, f"closing after {delivered} chunks")
 
     def _unsolicited_chunk(self) -> bytes:
+        return encode_chunk_frame(self._unsolicited_envelope())
+
+    def _unsolicited_envelope(self) -> ChunkEnvelope:
+        """A chunk answering no observation the client sent."""
         epoch = self.hello.hello.queue_epoch if self.hello else 0
         q = np.asarray(self.config.goal, dtype=float)
         observation = Observation(
             observation_id="unsolicited", t_event=0, queue_epoch=epoch, task_phase="FREE_SPACE",
             q=array_payload(q))
         now = self.server.now_ns()
-        return encode_chunk_frame(self._chunk(observation, q, now, now, ChunkFaults()))
+        return self._chunk(observation, q, now, now, ChunkFaults())
 
     # -- sending ---------------------------------------------------------------------------
 
