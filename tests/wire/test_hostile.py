@@ -3,20 +3,33 @@ nothing the core is fed stops a journal from replaying."""
 
 from __future__ import annotations
 
+import dataclasses
 import time
 
+import numpy as np
 import pytest
 
+from assurance.envelope import decode_wire_chunk
 from assurance.reasons import ReasonCode as R
-from kernel.core.events import ChunkEvent, ClockSyncEvent, TickEvent
+from kernel.app.live import client_config
+from kernel.core.effects import Step
+from kernel.core.events import ChunkEvent, ClockSyncEvent, ObservationEvent, TickEvent
+from kernel.core.lines import ChunkLine, encode
+from kernel.core.runtime import Core
 from kernel.journal import event_record
+from kernel.manifest import PolicySettings
+from kernel.scenario.config import build_config
 from kernel.scenario.events import parse_events
 from kernel.scenario.fields import Where
 from kernel.shell.link_budget import AdmissionPacer, TokenBucket
 from kernel.shell.link_intake import OTHERS_QUEUED
+from kernel.shell.link_types import ClientConfig
 from kernel.wire import MAX_CLOCK_OFFSET_NS
 from stubs.policy_server import FaultConfig
+from stubs.policy_server import envelope as peer_env
+from stubs.policy_server import protocol as peer
 from tests.wire.harness import LoopbackGateway, running, server_config, wait_for
+from tools.scenarios.base import ScenarioSpec
 
 
 def journal_round_trip(gateway: LoopbackGateway) -> None:
@@ -127,3 +140,47 @@ async def test_admissions_run_at_most_the_paced_number_per_control_period() -> N
             most = max(most, per_period)
     assert most == 1
     assert link.client.counters.admissions_deferred > 0
+
+
+EXTREMES = [-(2**63 - 1), -(2**62), -1, 0, 2**62, 2**63 - 1]
+
+
+@pytest.mark.parametrize("offset", [-MAX_CLOCK_OFFSET_NS, 0, MAX_CLOCK_OFFSET_NS])
+@pytest.mark.parametrize("time", EXTREMES)
+def test_times_at_the_ends_of_their_range_are_refused_never_raised(offset: int,
+                                                                   time: int) -> None:
+    """Any time a chunk may carry, under any offset a sync may measure: a decision line that
+    encodes, never an exception out of the core."""
+    spec = ScenarioSpec(name="s", description="", events=[], until=0, expect=[],
+                        phase="FREE_SPACE")
+    core = Core(build_config(spec.document(), Where("s", "")))
+    core.step(ClockSyncEvent(t=1, domain="server", offset=offset, round_trip=2**63 - 1))
+    core.step(ObservationEvent(t=2, observation_id="o1"))
+    chunk = peer_env.ChunkEnvelope(
+        chunk_id="c1", sequence=2**63 - 1, queue_epoch=0, policy_checkpoint="act-insert-2026-07",
+        config_hash="cfg-9f2c", skill_version="3.1.0", task_phase="FREE_SPACE",
+        controller_mode="joint_position", calibration_epoch="cal-12", observation_id="o1",
+        first_action_time=time, action_dt=2**63 - 1, actions=peer.array_payload(np.zeros((3, 6))),
+        observation_event_time=time, observation_arrival_time=time, inference_start=time,
+        inference_end=time, server_send=time, max_observation_age=time, max_action_age=time,
+        clock_domain="server")
+    body = peer_env.encode_chunk_body(chunk)
+    step = core.step(ChunkEvent(3, decode_wire_chunk(body, 3), body))
+    step = Step(step.lines + core.step(TickEvent(t=4)).lines, ())
+    (line,) = [x for x in step.lines if isinstance(x, ChunkLine)]
+    assert line.decision == "rejected" and R.HANDSHAKE_REQUIRED not in line.reasons
+    assert all(encode(x) for x in step.lines)
+
+
+def test_the_manifests_link_limits_reach_the_client() -> None:
+    settings = PolicySettings(max_frame_bytes=4096, max_frames_per_s=50.0, max_chunks_per_s=7.0,
+                              max_requests_in_flight=2, request_timeout_ms=80.0,
+                              heartbeat_interval_ms=50.0, heartbeat_timeout_ms=200.0)
+    config = client_config(settings, "ws://127.0.0.1:1")
+    assert (config.max_frame_bytes, config.max_frames_per_s, config.max_chunks_per_s) == (
+        4096, 50.0, 7.0)
+    assert (config.max_requests_in_flight, config.request_timeout_s) == (2, 0.08)
+    assert (config.heartbeat_interval_s, config.heartbeat_timeout_s) == (0.05, 0.2)
+    defaults = client_config(PolicySettings(), "ws://127.0.0.1:1")
+    assert dataclasses.replace(defaults, client_id="x") == ClientConfig(url=defaults.url,
+                                                                        client_id="x")
