@@ -12,9 +12,10 @@ at the link loss. A policy server this run launched is restarted when it falls s
 accepting connections.
 
 What one peer can cost is bounded (:mod:`kernel.shell.link_budget`): frames and chunks over
-their rates are dropped and counted, chunks wait in a queue of one burst for an admission slot
-the control loop hands out (:class:`AdmissionPacer`), and at most so many observations are in
-flight.
+their rates are dropped and counted, chunks wait in a short queue for an admission slot the
+control loop hands out (:mod:`kernel.shell.link_intake`), and at most so many observations are
+in flight. The clock exchange is :mod:`kernel.shell.link_clock`, the per-connection state
+:mod:`kernel.shell.link_connection`.
 
 Expected failures (refused connections, closed sockets, protocol violations, silence, a
 rejected handshake) end the connection cleanly and are counted. Anything else is a bug and
@@ -27,8 +28,6 @@ import asyncio
 import contextlib
 import itertools
 import time
-from dataclasses import dataclass
-from enum import StrEnum
 
 import msgspec
 import structlog
@@ -41,6 +40,8 @@ from kernel.core import events as ev
 from kernel.core.effects import EndSession, RequestObservation
 from kernel.core.lines import HandshakeLine
 from kernel.shell.link_budget import AdmissionPacer, RequestWindow, TokenBucket
+from kernel.shell.link_clock import LinkClock
+from kernel.shell.link_connection import SILENCE, Connection, LinkEnd, LinkEnded, closed
 from kernel.shell.link_intake import ChunkIntake
 from kernel.shell.link_types import (
     ClientConfig,
@@ -50,46 +51,9 @@ from kernel.shell.link_types import (
     LinkState,
 )
 from kernel.shell.supervisor import describe
-from kernel.wire import ByeReason, ClockSample, Message, MessageType, ProtocolViolation
+from kernel.wire import ByeReason, ClockSample, MessageType, ProtocolViolation
 
-_CLOSE_TOO_BIG = 1009
-_SILENCE = frozenset({ByeReason.HEARTBEAT_TIMEOUT, ByeReason.CLOCK_TIMEOUT,
-                      ByeReason.HANDSHAKE_TIMEOUT})
 log = structlog.get_logger("warden.link")
-
-
-class LinkEnd(StrEnum):
-    """How a connection ended, as far as restarting a launched server is concerned."""
-
-    SILENT = "silent"
-    """The peer stopped answering (heartbeat, clock or handshake timeout)."""
-    UNREACHABLE = "unreachable"
-    """No connection could be opened (refused, or no websocket handshake in time)."""
-    OTHER = "other"
-
-
-class _LinkEnded(Exception):
-    """This connection is over; ``bye`` is what to tell the peer (None: nothing to say)."""
-
-    def __init__(self, bye: ByeReason | None, detail: str, oversized: bool = False) -> None:
-        super().__init__(detail)
-        self.bye = bye
-        self.detail = detail
-        self.oversized = oversized
-
-
-@dataclass(slots=True, eq=False)
-class _Link:
-    """Per-connection state; a new one for every connection."""
-
-    ws: ClientConnection
-    last_rx: float
-    offer: asyncio.Future[wire.Offer]
-    accepted: bool = False
-    version: int | None = None
-    pong: asyncio.Future[tuple[wire.ClockPong, int]] | None = None
-    """The answer to the one ping in flight (pings of a burst go one at a time)."""
-    ping_seq: int = 0
 
 
 class RobotClient:
@@ -102,9 +66,9 @@ class RobotClient:
         self.state = LinkState.IDLE
         self.fingerprint: str | None = None
         self.protocol: int | None = None
-        self.clock: ClockSample | None = None
         self._gateway = gateway
         self._server = server
+        self._clock = LinkClock(config, gateway)
         self._frames = TokenBucket(config.max_frames_per_s)
         self._window = RequestWindow(config.max_requests_in_flight, config.request_timeout_s)
         self._intake = ChunkIntake(gateway, self.counters, config.max_chunks_per_s,
@@ -119,6 +83,11 @@ class RobotClient:
         self._observation_ids = itertools.count(1)
         gateway.on(RequestObservation, self._on_request)
         gateway.on(EndSession, self._on_session_end)
+
+    @property
+    def clock(self) -> ClockSample | None:
+        """The clock sync in force (the last burst's best sample)."""
+        return self._clock.sample
 
     # -- the core's side ---------------------------------------------------------------------
 
@@ -199,9 +168,10 @@ class RobotClient:
         self._end.clear()
         if self._stopping:
             self._end.set()
-        link = _Link(ws, time.monotonic(), asyncio.get_running_loop().create_future())
+        link = Connection(ws, self.counters, time.monotonic(),
+                          asyncio.get_running_loop().create_future())
         self._intake.begin()
-        ended: _LinkEnded | None = None
+        ended: LinkEnded | None = None
         try:
             async with asyncio.TaskGroup() as tasks:
                 tasks.create_task(self._read(link))
@@ -209,21 +179,21 @@ class RobotClient:
                 tasks.create_task(self._heartbeat(link))
                 tasks.create_task(self._watch_end())
                 tasks.create_task(self._open_session(link, tasks))
-        except* _LinkEnded as group:
+        except* LinkEnded as group:
             ended = group.exceptions[0]  # type: ignore[assignment]
         if ended is None:  # unreachable: every task runs until the link ends
             return LinkEnd.OTHER
         self._intake.end()
         self._report_link(up=False)  # the core first: it never waits for a goodbye
         await self._finish(link, ended)
-        return LinkEnd.SILENT if ended.bye in _SILENCE else LinkEnd.OTHER
+        return LinkEnd.SILENT if ended.bye in SILENCE else LinkEnd.OTHER
 
-    async def _finish(self, link: _Link, ended: _LinkEnded) -> None:
+    async def _finish(self, link: Connection, ended: LinkEnded) -> None:
         """Say goodbye and close, within ``close_timeout_s``; a silent peer is not waited for
         (its transport is aborted once the goodbye is written)."""
         self.state = LinkState.CLOSING
         self.counters.oversized += ended.oversized  # counted here: once per connection
-        silent = ended.bye in _SILENCE
+        silent = ended.bye in SILENCE
         with contextlib.suppress(TimeoutError, ConnectionClosed):
             async with asyncio.timeout(self.config.close_timeout_s):
                 if ended.bye is not None:
@@ -238,7 +208,7 @@ class RobotClient:
 
     async def _watch_end(self) -> None:
         await self._end.wait()
-        raise _LinkEnded(self._end_reason, "ended by the robot side")
+        raise LinkEnded(self._end_reason, "ended by the robot side")
 
     async def _pause(self, delay: float) -> None:
         with contextlib.suppress(TimeoutError):
@@ -247,22 +217,22 @@ class RobotClient:
 
     # -- handshake -------------------------------------------------------------------------
 
-    async def _open_session(self, link: _Link, tasks: asyncio.TaskGroup) -> None:
+    async def _open_session(self, link: Connection, tasks: asyncio.TaskGroup) -> None:
         self.state = LinkState.HANDSHAKING
         try:
             async with asyncio.timeout(self.config.handshake_timeout_s):
-                await self._sync_clock(link)
-                await self._send(link, wire.Hello(client_id=self.config.client_id,
+                await self._clock.sync(link)
+                await link.send(wire.Hello(client_id=self.config.client_id,
                                                   protocol=self.config.protocol,
                                                   hello=self._gateway.client_side_hello()))
                 offer = await link.offer
         except TimeoutError as error:
-            raise _LinkEnded(ByeReason.HANDSHAKE_TIMEOUT, "no offer in time") from error
+            raise LinkEnded(ByeReason.HANDSHAKE_TIMEOUT, "no offer in time") from error
         await self._decide(link, offer)
         tasks.create_task(self._requests(link))
-        tasks.create_task(self._refresh_clock(link))
+        tasks.create_task(self._clock.refresh(link))
 
-    async def _decide(self, link: _Link, offer: wire.Offer) -> None:
+    async def _decide(self, link: Connection, offer: wire.Offer) -> None:
         """The core decides; the client only carries its decision back to the server."""
         self._wanted.clear()  # requests made before this handshake are not for its session
         self._window.clear()
@@ -274,61 +244,19 @@ class RobotClient:
         decision = HandshakeDecision(decision=verdict.decision, fingerprint=verdict.fingerprint,
                                      reasons=tuple(verdict.reasons), protocol=verdict.protocol)
         epoch = self._gateway.client_side_hello().queue_epoch
-        await self._send(link, wire.Decision(decision=decision, queue_epoch=epoch))
+        await link.send(wire.Decision(decision=decision, queue_epoch=epoch))
         if verdict.decision != "ACCEPT" or verdict.protocol is None:
             self.counters.handshakes_rejected += 1
-            raise _LinkEnded(ByeReason.HANDSHAKE_REJECTED, ",".join(verdict.reasons))
+            raise LinkEnded(ByeReason.HANDSHAKE_REJECTED, ",".join(verdict.reasons))
         self.counters.handshakes_accepted += 1
         link.accepted, link.version = True, verdict.protocol
         self.fingerprint, self.protocol = verdict.fingerprint, verdict.protocol
         self.state = LinkState.ACCEPTED
-        await self._report_clock(link)
-
-    # -- clock -----------------------------------------------------------------------------
-
-    async def _sync_clock(self, link: _Link) -> None:
-        samples = [await self._ping(link) for _ in range(self.config.clock_burst)]
-        best = wire.best_sample(samples)
-        if best is None:
-            raise _LinkEnded(ByeReason.PROTOCOL_VIOLATION, "no usable clock sample")
-        self.clock = best
-        self.counters.clock_syncs += 1
-        self._gateway.feed(ev.ClockSyncEvent(
-            t=self._gateway.now_ns(), domain=wire.SERVER_CLOCK_DOMAIN, offset=best.offset,
-            round_trip=best.round_trip))
-
-    async def _report_clock(self, link: _Link) -> None:
-        if link.version is not None and link.version >= 2 and self.clock is not None:
-            await self._send(link, wire.ClockReport(offset=self.clock.offset,
-                                                    round_trip=self.clock.round_trip))
-
-    async def _ping(self, link: _Link) -> ClockSample:
-        link.ping_seq += 1
-        link.pong = answer = asyncio.get_running_loop().create_future()
-        t0 = self._gateway.now_ns()
-        try:
-            await self._send(link, wire.ClockPing(seq=link.ping_seq, t0=t0))
-            async with asyncio.timeout(self.config.clock_ping_timeout_s):
-                pong, t1 = await answer
-            sample = wire.clock_sample(t0, pong, t1)
-        except TimeoutError as error:
-            raise _LinkEnded(ByeReason.CLOCK_TIMEOUT, "clock ping unanswered") from error
-        except ProtocolViolation as error:  # an implausible clock: never fed to the core
-            raise self._violation(error) from error
-        finally:
-            link.pong = None
-        self.counters.clock_round_trips += 1
-        return sample
-
-    async def _refresh_clock(self, link: _Link) -> None:
-        while True:
-            await asyncio.sleep(self.config.clock_refresh_s)
-            await self._sync_clock(link)
-            await self._report_clock(link)
+        await self._clock.report(link)
 
     # -- observations out ------------------------------------------------------------------
 
-    async def _requests(self, link: _Link) -> None:
+    async def _requests(self, link: Connection) -> None:
         window = self._window
         while True:
             await self._wanted.wait()
@@ -343,21 +271,21 @@ class RobotClient:
             await self._observe(link)
             self.counters.requests_expired = window.expired
 
-    async def _observe(self, link: _Link) -> None:
+    async def _observe(self, link: Connection) -> None:
         sample = self._gateway.capture_observation()
         t = self._gateway.now_ns()
         observation_id = f"{self.config.client_id}/{next(self._observation_ids)}"
         self._gateway.feed(ev.ObservationEvent(t=t, observation_id=observation_id))
         self._window.sent(observation_id)
         epoch = self._gateway.client_side_hello().queue_epoch
-        await self._send(link, wire.Observation(
+        await link.send(wire.Observation(
             observation_id=observation_id, t_event=t, queue_epoch=epoch,
             task_phase=str(sample.task_phase), q=wire.vector_payload(sample.q),
             qd=wire.optional_payload(sample.qd), wrench=wire.optional_payload(sample.wrench),
             gripper=sample.gripper))
         self.counters.observations_sent += 1
 
-    async def _heartbeat(self, link: _Link) -> None:
+    async def _heartbeat(self, link: Connection) -> None:
         """Send a heartbeat every interval; declare the peer silent the moment it has been for
         ``heartbeat_timeout_s`` (woken at that instant, not at the next heartbeat)."""
         interval, timeout = self.config.heartbeat_interval_s, self.config.heartbeat_timeout_s
@@ -369,21 +297,21 @@ class RobotClient:
                     await self._declare_silence(link, timeout)
             if now - link.last_rx > 1.5 * interval:  # the peer's heartbeat (or anything) is late
                 self.counters.heartbeat_misses += 1
-            await self._send(link, wire.Heartbeat(seq=seq, t_send=self._gateway.now_ns()))
+            await link.send(wire.Heartbeat(seq=seq, t_send=self._gateway.now_ns()))
             next_send += interval
 
-    async def _declare_silence(self, link: _Link, timeout: float) -> None:
+    async def _declare_silence(self, link: Connection, timeout: float) -> None:
         # After a stall of this loop, frames may sit unread: let the reader run first.
         for _ in range(3):
             await asyncio.sleep(0)
         silent = time.monotonic() - link.last_rx
         if silent > timeout:
             self.counters.link_timeouts += 1
-            raise _LinkEnded(ByeReason.HEARTBEAT_TIMEOUT, f"peer silent for {silent:.3f} s")
+            raise LinkEnded(ByeReason.HEARTBEAT_TIMEOUT, f"peer silent for {silent:.3f} s")
 
     # -- frames in -------------------------------------------------------------------------
 
-    async def _read(self, link: _Link) -> None:
+    async def _read(self, link: Connection) -> None:
         try:
             async for data in link.ws:
                 link.last_rx = time.monotonic()
@@ -394,12 +322,12 @@ class RobotClient:
                     continue
                 self._dispatch(link, data)
         except ConnectionClosed as error:
-            raise self._closed(error) from error
+            raise closed(error) from error
         except ProtocolViolation as error:
-            raise self._violation(error) from error
-        raise _LinkEnded(None, "closed by the server")
+            raise link.violation(error) from error
+        raise LinkEnded(None, "closed by the server")
 
-    def _dispatch(self, link: _Link, data: bytes | str) -> None:
+    def _dispatch(self, link: Connection, data: bytes | str) -> None:
         frame = wire.decode_frame(data)
         kind = wire.message_type(frame, link.version)
         if kind is MessageType.CHUNK:
@@ -409,40 +337,16 @@ class RobotClient:
             return
         message = wire.decode_body(frame, kind)
         if isinstance(message, wire.ClockPong):
-            self._on_pong(link, message, self._gateway.now_ns())
+            self._clock.on_pong(link, message, self._gateway.now_ns())
         elif isinstance(message, wire.Offer) and not link.offer.done():
             link.offer.set_result(message)
         elif isinstance(message, wire.Bye):
             self.counters.byes_received += 1
-            raise _LinkEnded(None, f"server said bye: {message.reason[:40]}")
+            raise LinkEnded(None, f"server said bye: {message.reason[:40]}")
         elif not isinstance(message, wire.Heartbeat):
             raise ProtocolViolation(f"unexpected {kind} from the server")
 
-    def _on_pong(self, link: _Link, pong: wire.ClockPong, t_receive: int) -> None:
-        # a pong for a ping that already timed out carries no usable sample: dropped
-        if link.pong is not None and pong.seq == link.ping_seq and not link.pong.done():
-            link.pong.set_result((pong, t_receive))
-
     # -- helpers ---------------------------------------------------------------------------
-
-    async def _send(self, link: _Link, message: Message) -> None:
-        data = wire.encode(message)
-        try:
-            await link.ws.send(data)
-        except ConnectionClosed as error:
-            raise self._closed(error) from error
-        self.counters.frames_out += 1
-        self.counters.bytes_out += len(data)
-
-    def _violation(self, error: ProtocolViolation) -> _LinkEnded:
-        self.counters.protocol_violations += 1
-        return _LinkEnded(error.reason, error.detail)
-
-    @staticmethod
-    def _closed(error: ConnectionClosed) -> _LinkEnded:
-        if error.sent is not None and error.sent.code == _CLOSE_TOO_BIG:
-            return _LinkEnded(None, "frame over the size limit", oversized=True)
-        return _LinkEnded(None, f"connection closed ({error})")
 
     def _report_link(self, up: bool) -> None:
         if up or not self._down_reported:  # one "down" per loss, not one per failed attempt
