@@ -48,8 +48,8 @@ class ObservationLog:
 
     This record, not the server's claim, is authoritative for an observation's time. An
     observation is *pending* from when it is recorded until a chunk that answers it is admitted;
-    after that it is *answered*, and any further chunk citing it answers nothing the client
-    asked for.
+    after that it is *answered* (until a new queue epoch purges that answer), and any further
+    chunk citing it answers nothing the client asked for.
     """
 
     def __init__(self, capacity: int = 1024) -> None:
@@ -78,6 +78,11 @@ class ObservationLog:
     def answered(self, observation_id: str) -> bool:
         """True for an observation of this session that an admitted chunk answered already."""
         return observation_id in self._answered
+
+    def forget_answers(self) -> None:
+        """A new queue epoch purged every admitted answer: nothing recorded counts as answered
+        any more (an answer made for the new epoch is judged by every gate again)."""
+        self._answered.clear()
 
     def clear(self) -> None:
         """A new session: observations of the old one are no longer this client's."""

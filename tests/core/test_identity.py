@@ -114,5 +114,8 @@ def test_an_observation_is_pending_until_an_admitted_chunk_answers_it() -> None:
     log.record("o3", 3)  # o1 is forgotten: an answer to it is an unknown observation again
     assert not log.answered("o1") and log.time_of("o1") is None
     log.answer("o3")
+    log.forget_answers()  # a new epoch purged the answer: o3 is pending again, still known
+    assert not log.answered("o3") and log.time_of("o3") == 3
+    log.answer("o3")
     log.clear()  # a new session: nothing of the old one is pending or answered
     assert not log.answered("o3") and log.time_of("o3") is None
