@@ -2,12 +2,11 @@
 
 Outside RUNNING the fallback state decides (hold, retreat, stop, human; in DEGRADED the phase's
 classical owner keeps its job, and contact ends as the phase card's ``link_loss`` says). In
-RUNNING the phase's
-executor decides: a policy phase sends the queued action in force, or holds at the measured
-state on underrun (a validated hold, never the last action repeated) and escalates to SAFE_HOLD
-if the underrun lasts; the contact owner runs the impedance law with the admitted bounded target
-if there is one; the planner runs its classical trajectory. Every tick that is not a policy
-setpoint carries its reason.
+RUNNING the phase's executor decides: a policy phase sends the queued action in force, or holds
+at the measured state on underrun (a validated hold, never the last action repeated) and
+escalates to SAFE_HOLD if the underrun lasts; the contact owner runs the impedance law with the
+admitted bounded target if there is one; the planner runs its classical trajectory. Every tick
+that is not a policy setpoint carries its reason.
 """
 
 from __future__ import annotations
