@@ -64,6 +64,8 @@ MAX_TIME_NS = 2**63 - 1
 WireText = Annotated[str, msgspec.Meta(min_length=1)]
 WireTime = Annotated[int, msgspec.Meta(ge=-MAX_TIME_NS, le=MAX_TIME_NS)]
 WireStep = Annotated[int, msgspec.Meta(gt=0, le=MAX_TIME_NS)]
+WireCount = Annotated[int, msgspec.Meta(ge=0, le=MAX_TIME_NS)]
+"""Sequence numbers and queue epochs: counted up from 0, never past the int64 range."""
 ActionIndex = Annotated[int, msgspec.Meta(ge=0)]
 
 
@@ -71,8 +73,8 @@ class WireChunk(msgspec.Struct, frozen=True, kw_only=True):
     """A chunk on the wire. Optional fields are the ones a proposer may not know."""
 
     chunk_id: WireText
-    sequence: int
-    queue_epoch: int
+    sequence: WireCount
+    queue_epoch: WireCount
     policy_checkpoint: WireText
     config_hash: WireText
     skill_version: WireText

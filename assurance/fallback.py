@@ -148,9 +148,10 @@ REFUSAL_PRIORITY: tuple[R, ...] = (
 # A refusal carrying one of these is about a chunk that does not belong to the present context
 # (another phase, an old epoch, no session, no authority): refusing it is the whole answer, it
 # says nothing about the health of the current motion.
+# A second answer to an observation is one of them: the queue runs on the admitted answer.
 IRRELEVANT: frozenset[R] = frozenset({
     R.DUPLICATE, R.OLD_QUEUE_EPOCH, R.FUTURE_QUEUE_EPOCH, R.PHASE_MISMATCH,
-    R.HANDSHAKE_REQUIRED, R.NO_AUTHORITY, R.SKILL_MISMATCH,
+    R.HANDSHAKE_REQUIRED, R.NO_AUTHORITY, R.SKILL_MISMATCH, R.OBSERVATION_ANSWERED,
 })
 
 

@@ -46,25 +46,46 @@ class ChunkMemory:
 class ObservationLog:
     """The client's own record of the observations it sent in this session (bounded).
 
-    This record, not the server's claim, is authoritative for an observation's time.
+    This record, not the server's claim, is authoritative for an observation's time. An
+    observation is *pending* from when it is recorded until a chunk that answers it is admitted;
+    after that it is *answered* (until a new queue epoch purges that answer), and any further
+    chunk citing it answers nothing the client asked for.
     """
 
     def __init__(self, capacity: int = 1024) -> None:
         self.capacity = capacity
         self._times: OrderedDict[str, int] = OrderedDict()
+        self._answered: set[str] = set()
         self.latest: str | None = None
 
     def record(self, observation_id: str, t_event: int) -> None:
         self._times[observation_id] = t_event
         self._times.move_to_end(observation_id)
+        self._answered.discard(observation_id)
         self.latest = observation_id
         if len(self._times) > self.capacity:
-            self._times.popitem(last=False)
+            oldest, _ = self._times.popitem(last=False)
+            self._answered.discard(oldest)
 
     def time_of(self, observation_id: str) -> int | None:
         return self._times.get(observation_id)
 
+    def answer(self, observation_id: str) -> None:
+        """An admitted chunk answered ``observation_id``: it is no longer pending."""
+        if observation_id in self._times:
+            self._answered.add(observation_id)
+
+    def answered(self, observation_id: str) -> bool:
+        """True for an observation of this session that an admitted chunk answered already."""
+        return observation_id in self._answered
+
+    def forget_answers(self) -> None:
+        """A new queue epoch purged every admitted answer: nothing recorded counts as answered
+        any more (an answer made for the new epoch is judged by every gate again)."""
+        self._answered.clear()
+
     def clear(self) -> None:
         """A new session: observations of the old one are no longer this client's."""
         self._times.clear()
+        self._answered.clear()
         self.latest = None

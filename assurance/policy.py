@@ -3,8 +3,19 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from enum import StrEnum
 
 from assurance.clock import ms_to_ns
+
+
+class LinkLoss(StrEnum):
+    """What a contact phase does when the policy link is lost (the fallback machine is
+    DEGRADED): contact ends either way, the contact owner keeps motion."""
+
+    RETRACT = "retract"
+    """The contact owner's force-aware retreat: lift along the descent's axis to its start."""
+    HOLD = "hold"
+    """Stop pressing: hold compliantly where the tool is, at a reduced stiffness."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -35,6 +46,13 @@ class PhasePolicy:
     max_underrun_ns: int | None = None
     """How long a policy-owned phase may hold on an empty queue before SAFE_HOLD;
     ``None`` means ``max_action_age_ns``."""
+
+    link_loss: LinkLoss = LinkLoss.RETRACT
+    """Read in a phase whose executor is the contact owner (docs/contract.md)."""
+    link_loss_hold_factor: float = 0.25
+    """With ``link_loss = hold``: the stiffness the hold keeps, as a fraction (0, 1] of the
+    contact law's (the damping scales with its square root, so the hold stays critically
+    damped)."""
 
     @property
     def underrun_limit_ns(self) -> int:

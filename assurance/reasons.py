@@ -53,6 +53,9 @@ class ReasonCode(StrEnum):
     RECOVERY_ACCEPTED = "RECOVERY_ACCEPTED"
     GUARD_FAILED = "GUARD_FAILED"
     # --- added by warden (docs/contract.md §8, "Added names") ---
+    OBSERVATION_ANSWERED = "OBSERVATION_ANSWERED"
+    """The chunk cites an observation of this session that an admitted chunk already
+    answered: it answers no pending request and is refused before any other work."""
     FUTURE_QUEUE_EPOCH = "FUTURE_QUEUE_EPOCH"
     """A chunk names a queue epoch this client has not issued yet."""
     GUARD_PASSED = "GUARD_PASSED"

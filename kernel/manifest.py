@@ -20,12 +20,15 @@ from enum import StrEnum
 from pathlib import Path
 from typing import Any
 
+from assurance.clock import ms_to_ns, ns_to_ms
 from drivers.settings import SettingsError, settings_from_mapping
 from kernel.core.config import CoreConfig
 from kernel.scenario import bounds
 from kernel.scenario.config import build_config, check_keys
 from kernel.scenario.document import check_document, decoded, read_bytes
 from kernel.scenario.fields import ScenarioError, Where, in_range, shown, text
+from kernel.wire import MAX_FRAME_BYTES
+from skills.phases import Executor, TaskPhase
 
 
 class ManifestError(ScenarioError):
@@ -85,6 +88,35 @@ class PolicySettings:
     action_dt_ms: float = 20.0
     noise_rad: float = 0.0005
     clock_offset_ms: float = 0.0
+    # What one policy peer may cost (docs/manifest.md, [policy]; kernel/shell/link_budget.py)
+    max_frame_bytes: int = 65536
+    max_frames_per_s: float = 1000.0
+    max_chunks_per_s: float = 100.0
+    max_requests_in_flight: int = 4
+    request_timeout_ms: float = 250.0
+    admissions_per_period: int = 1
+    heartbeat_interval_ms: float = 100.0
+    heartbeat_timeout_ms: float = 350.0
+
+    def __post_init__(self) -> None:
+        for name in ("max_frames_per_s", "max_chunks_per_s", "request_timeout_ms",
+                     "heartbeat_interval_ms"):
+            if not getattr(self, name) > 0:  # also refuses NaN
+                raise ValueError(f"{name} must be positive, got {getattr(self, name)!r}")
+        for name in ("max_requests_in_flight", "admissions_per_period"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be at least 1, got {getattr(self, name)!r}")
+        if not 1 <= self.max_frame_bytes <= MAX_FRAME_BYTES:
+            raise ValueError(f"max_frame_bytes must be in 1..{MAX_FRAME_BYTES}, got "
+                             f"{self.max_frame_bytes!r}")
+        if not self.heartbeat_timeout_ms > self.heartbeat_interval_ms:
+            raise ValueError(f"heartbeat_timeout_ms ({self.heartbeat_timeout_ms!r}) must be "
+                             f"longer than heartbeat_interval_ms ({self.heartbeat_interval_ms})")
+
+    @property
+    def link_loss_bound_ms(self) -> float:
+        """How long a dead link may go unnoticed, with one heartbeat of margin."""
+        return self.heartbeat_timeout_ms + self.heartbeat_interval_ms
 
 
 @dataclass(frozen=True, slots=True)
@@ -170,14 +202,15 @@ def _load(path: Path, raw: str) -> Manifest:
             "missing required key 'state_timeout_ms': a real device needs the state watchdog "
             "(the arm stops when its state samples stop)")
     del driver["name"]
+    policy = _policy(_settings(PolicySettings, doc, "policy", where), where.at("policy"))
+    _check_link_loss_first(core, policy, where)
     return Manifest(
         name=_run_name(doc, path, where), path=path, core=core, sections=sections,
         driver_name=driver_name, driver_settings=driver,
         emulator=_settings(EmulatorSettings, doc, "emulator", where),
         cell=_checked(_settings(CellSettings, doc, "cell", where), _CELL_BOUNDS,
                       where.at("cell")),
-        policy=_policy(_settings(PolicySettings, doc, "policy", where), where.at("policy")),
-        journal=_settings(JournalSettings, doc, "journal", where),
+        policy=policy, journal=_settings(JournalSettings, doc, "journal", where),
         task=dict(_table(doc, "task", where)),
         operator=_settings(OperatorSettings, doc, "operator", where),
         trial=_trial(doc, where),
@@ -239,6 +272,24 @@ def _run_name(doc: Mapping[str, Any], path: Path, where: Where) -> str:
 
 _NAME_RULE = ("1 to 64 ASCII letters, digits, '.', '_' or '-', not starting with '.' or '-': "
               "it names the run's directory")
+
+
+def _check_link_loss_first(core: CoreConfig, policy: PolicySettings, where: Where) -> None:
+    """A dead link must be DEGRADED (a new handshake recovers) before the queue it starves
+    escalates to SAFE_HOLD (only an operator recovers): every phase the policy executes must
+    hold on an empty queue longer than the link takes to be declared lost."""
+    bound_ns = ms_to_ns(policy.link_loss_bound_ms)
+    for phase in TaskPhase:
+        card = core.phases.card(phase)
+        if card.executor is not Executor.POLICY or not card.takes_proposals:
+            continue
+        if card.policy.underrun_limit_ns <= bound_ns:
+            implied = " (max_action_age_ms)" if card.policy.max_underrun_ns is None else ""
+            raise where.at("phases").at(phase).at("max_underrun_ms").error(
+                f"{ns_to_ms(card.policy.underrun_limit_ns)} ms{implied} must be longer than "
+                "policy.heartbeat_timeout_ms + heartbeat_interval_ms = "
+                f"{policy.link_loss_bound_ms:g} ms: a dead policy link must end in DEGRADED, "
+                "not in an underrun SAFE_HOLD that only an operator can end")
 
 
 def _refuse_unknown(doc: Mapping[str, Any], where: Where) -> None:

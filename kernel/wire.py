@@ -18,18 +18,36 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from enum import StrEnum
+from typing import Annotated
 
 import msgspec
 import numpy as np
 
-from assurance.envelope import UNDECODABLE_FRAME, ArrayPayload, WireChunk, short_error
+from assurance.envelope import (
+    MAX_TIME_NS,
+    UNDECODABLE_FRAME,
+    ArrayPayload,
+    WireChunk,
+    WireCount,
+    WireTime,
+    short_error,
+)
 from assurance.handshake import ClientHello, HandshakeDecision, HandshakeOffer
 
 PROTOCOL_RANGE: tuple[int, int] = (1, 2)
 MAX_FRAME_BYTES = 1 << 20
-"""Frames larger than this are refused by the transport (websocket close 1009)."""
+"""The protocol's ceiling on a frame; a client may configure a lower limit (the manifest's
+``policy.max_frame_bytes``). Larger frames are refused by the transport (close 1009)."""
 SERVER_CLOCK_DOMAIN = "server"
 """The ``clock_domain`` of the server's times, and the domain of the client's clock sync."""
+MAX_CLOCK_OFFSET_NS = 2**62
+"""Largest clock offset a sync may measure (about 146 years): two hosts' clocks, even a
+boot-relative one against the Unix epoch, are far closer. A pong implying more is a violation,
+so an offset always fits a 64-bit integer with room to add any wire time's magnitude."""
+
+# Bounded in the decoder (in C), so no value a peer sends can overflow what is computed from it.
+ClockOffset = Annotated[int, msgspec.Meta(ge=-MAX_CLOCK_OFFSET_NS, le=MAX_CLOCK_OFFSET_NS)]
+Duration = Annotated[int, msgspec.Meta(ge=0, le=MAX_TIME_NS)]
 
 
 class MessageType(StrEnum):
@@ -104,27 +122,27 @@ class Decision(msgspec.Struct, frozen=True, kw_only=True):
     """
 
     decision: HandshakeDecision
-    queue_epoch: int
+    queue_epoch: WireCount
 
 
 class ClockPing(msgspec.Struct, frozen=True, kw_only=True):
-    seq: int
-    t0: int
+    seq: WireCount
+    t0: WireTime
     """Client clock at sending."""
 
 
 class ClockPong(msgspec.Struct, frozen=True, kw_only=True):
-    seq: int
-    t0: int
-    t_server: int
+    seq: WireCount
+    t0: WireTime
+    t_server: WireTime
     """Server clock when the ping was answered."""
 
 
 class ClockReport(msgspec.Struct, frozen=True, kw_only=True):
     """Client → server (protocol 2): ``t_client = t_server + offset``, known to ±round_trip/2."""
 
-    offset: int
-    round_trip: int
+    offset: ClockOffset
+    round_trip: Duration
 
 
 class Observation(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
@@ -135,9 +153,9 @@ class Observation(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     """
 
     observation_id: str
-    t_event: int
+    t_event: WireTime
     """Client clock when the observation was captured."""
-    queue_epoch: int
+    queue_epoch: WireCount
     task_phase: str
     q: ArrayPayload
     qd: ArrayPayload | None = None
@@ -146,8 +164,8 @@ class Observation(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
 
 
 class Heartbeat(msgspec.Struct, frozen=True, kw_only=True):
-    seq: int
-    t_send: int
+    seq: WireCount
+    t_send: WireTime
 
 
 class Bye(msgspec.Struct, frozen=True, kw_only=True):
@@ -201,10 +219,8 @@ def decode_frame(data: bytes | str) -> Frame:
         raise ProtocolViolation("text frame on a binary protocol")
     try:
         return _frame_decoder.decode(data)
-    except (msgspec.DecodeError, msgspec.ValidationError) as error:
-        raise ProtocolViolation(f"undecodable frame: {short_error(error)}") from error
-    except UNDECODABLE_FRAME as error:  # invalid UTF-8 in the type, nesting too deep
-        raise ProtocolViolation(f"undecodable frame: {type(error).__name__}") from error
+    except (msgspec.DecodeError, *UNDECODABLE_FRAME) as error:  # invalid UTF-8, deep nesting
+        raise ProtocolViolation(f"undecodable frame: {_why(error)}") from error
 
 
 def message_type(frame: Frame, version: int | None = None) -> MessageType:
@@ -225,11 +241,14 @@ def decode_body(frame: Frame, kind: MessageType) -> Message:
         raise ProtocolViolation(f"{kind} has no message body decoder")
     try:
         return decoder.decode(frame.body)
-    except (msgspec.DecodeError, msgspec.ValidationError) as error:
-        raise ProtocolViolation(f"bad {kind} body: {short_error(error)}") from error
-    except UNDECODABLE_FRAME as error:  # invalid UTF-8 in a string, nesting too deep
-        raise ProtocolViolation(f"bad {kind} body: {type(error).__name__}") from error
+    except (msgspec.DecodeError, *UNDECODABLE_FRAME) as error:
+        raise ProtocolViolation(f"bad {kind} body: {_why(error)}") from error
 
+
+def _why(error: Exception) -> str:
+    if isinstance(error, msgspec.DecodeError):  # a ValidationError is one too
+        return short_error(error)
+    return type(error).__name__
 
 
 # ---------------------------------------------------------------------------------------------
@@ -275,6 +294,22 @@ class ClockSample:
     @property
     def offset(self) -> int:
         return (self.t0 + self.t1) // 2 - self.t_server
+
+
+def clock_sample(t0: int, pong: ClockPong, t1: int) -> ClockSample:
+    """The sample of the ping sent at ``t0`` and answered by ``pong`` at ``t1``.
+
+    Raises:
+        ProtocolViolation: the pong does not echo the ping's ``t0``, or its ``t_server`` puts
+            the two clocks more than :data:`MAX_CLOCK_OFFSET_NS` apart.
+    """
+    if pong.t0 != t0:
+        raise ProtocolViolation(f"clock pong {pong.seq} echoes t0 {pong.t0}, the ping sent {t0}")
+    sample = ClockSample(t0=t0, t_server=pong.t_server, t1=t1)
+    if abs(sample.offset) > MAX_CLOCK_OFFSET_NS:
+        raise ProtocolViolation(f"clock pong {pong.seq}: t_server {pong.t_server} is not a "
+                                "plausible clock reading")
+    return sample
 
 
 def best_sample(samples: list[ClockSample]) -> ClockSample | None:

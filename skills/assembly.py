@@ -242,6 +242,10 @@ class AssemblyRunner:
         if contact is ContactState.RETREATED and mode is Mode.RUNNING:
             return self._fail("contact anomaly: force-aware retreat", s, mode)
         timed_out = self._elapsed(s) > self.timing.insert_timeout_s
+        if mode is Mode.DEGRADED and (contact is ContactState.RETREATED or timed_out):
+            # The policy link was lost in contact and the card ended contact (retracted, or
+            # a soft hold that has now waited out the insertion's time): give the cycle up.
+            return self._fail("policy link lost in contact", s, mode)
         if contact is ContactState.DONE or timed_out:
             return self._request(P.VERIFY, s, mode)
         return None
@@ -330,8 +334,12 @@ class AssemblyRunner:
 
     def _request(self, to: TaskPhase, s: Sensed, mode: Mode,
                  evidence: dict[str, bool] | None = None) -> PhaseRequest | None:
-        """Ask for ``to`` while the runtime is RUNNING, at most every request interval."""
-        if mode is not Mode.RUNNING:
+        """Ask for ``to`` while the runtime is RUNNING, at most every request interval.
+
+        Without the policy link (DEGRADED) the classical owners keep their jobs, so the way
+        out of a cycle (retreat, then idle) is still asked for; nothing that needs the policy
+        is."""
+        if mode is not Mode.RUNNING and not (mode is Mode.DEGRADED and to in _WITHOUT_POLICY):
             return None
         if s.t_ns - self._last_request_ns < self.timing.request_interval_s * 1e9:
             return None
@@ -345,6 +353,9 @@ class AssemblyRunner:
         self._enter(Step.VERIFY, s.t_ns)
         return self._request(P.RETREAT, s, mode)
 
+
+_WITHOUT_POLICY = frozenset({P.RETREAT, P.IDLE})
+"""Phases the cycle may still ask for in DEGRADED: the planner retreats, nothing is learned."""
 
 _HANDLERS: dict[Step, Callable[..., PhaseRequest | None]] = {
     Step.START: AssemblyRunner._start,

@@ -5,7 +5,9 @@ speed in joint impedance mode, re-solving IK for the descent's tool orientation 
 stops when the target depth is reached or the measured force says the part has landed. A target
 offered by an admitted chunk is only ever a bounded correction of its own nominal target: it
 is clipped to ``max_target_offset`` and never replaces the law. The retreat lifts along the
-same axis, compliantly, until the tool is back at the start height.
+same axis, compliantly, until the tool is back at the start height. A relaxed hold stops
+pressing where the tool is, at a fraction of the stiffness (the phase card's choice when the
+policy link is lost, ``link_loss = "hold"``).
 
 Without a kinematic model the law can only hold compliantly where contact began: a descent is
 refused (:class:`NoKinematics`) and a retreat holds.
@@ -29,6 +31,8 @@ class ContactState(StrEnum):
     DONE = "done"
     RETREATING = "retreating"
     RETREATED = "retreated"
+    RELAXED = "relaxed"
+    """Stopped pressing: a soft compliant hold where the tool was (the policy link is lost)."""
 
 
 _STIFFNESS = (1500.0, 1500.0, 1000.0, 200.0, 200.0, 200.0)
@@ -83,6 +87,8 @@ class ContactOwner:
         self._z = self._z_start = self._z_end = 0.0
         self._q = np.zeros(self.config.stiffness.shape[0])
         self._dwell_until = 0
+        self._softness = 1.0
+        """The fraction of the law's stiffness in force (1 but in a relaxed hold)."""
 
     def start(self, q: np.ndarray, xy: np.ndarray, z_end: float, rotation: np.ndarray) -> None:
         """Begin a descent from the tool's height at ``q`` down to ``z_end``, along the vertical
@@ -97,11 +103,23 @@ class ContactOwner:
         self._rotation = np.asarray(rotation, float)
         self._z = self._z_start = float(kin.forward(self._q).position[2])
         self._z_end = float(z_end)
+        self._softness = 1.0
         self.state = ContactState.DESCENDING
 
     def reset(self) -> None:
         """A new cycle: nothing to descend, hold or retreat from."""
+        self._softness = 1.0
         self.state = ContactState.IDLE
+
+    def relax(self, q: np.ndarray, factor: float) -> None:
+        """Stop pressing: hold ``q`` (where the tool is) compliantly, the stiffness scaled by
+        ``factor`` in (0, 1] and the damping by its square root (still critically damped).
+        The pose is taken once: a relaxed hold stays where it began."""
+        if self.state is ContactState.RELAXED:
+            return
+        self._q = np.asarray(q, dtype=float).copy()
+        self._softness = float(factor)
+        self.state = ContactState.RELAXED
 
     def hold_at(self, q: np.ndarray) -> None:
         """Compliantly hold ``q`` (contact owned without a descent to run)."""
@@ -113,13 +131,14 @@ class ContactOwner:
         up, if no descent ran); without a kinematic model, a compliant hold where it is."""
         if self.state in (ContactState.RETREATING, ContactState.RETREATED):
             return
+        self._softness = 1.0
         self._q = np.asarray(q, dtype=float).copy()
         if self.kin is None:
             self.state = ContactState.RETREATED
             return
         pose = self.kin.forward(self._q)
         self._z = float(pose.position[2])
-        if self.state in (ContactState.IDLE, ContactState.HOLDING):
+        if self.state in (ContactState.IDLE, ContactState.HOLDING, ContactState.RELAXED):
             self._z_start = self._z + 0.02
             self._xy = pose.position[:2]
             self._rotation = pose.rotation
@@ -143,7 +162,10 @@ class ContactOwner:
             offset = np.clip(np.asarray(bounded_target) - self._q, -cfg.max_target_offset,
                              cfg.max_target_offset)
             target = self._q + offset
-        return ContactCommand(target, cfg.stiffness, cfg.damping, self.state)
+        if self._softness == 1.0:
+            return ContactCommand(target, cfg.stiffness, cfg.damping, self.state)
+        return ContactCommand(target, cfg.stiffness * self._softness,
+                              cfg.damping * np.sqrt(self._softness), self.state)
 
     def _descend(self, now_ns: int, dt_s: float, force_norm: float) -> None:
         landed = force_norm >= self.config.stop_force_n

@@ -6,6 +6,7 @@ what the parent needs (ports, pty path). Anything else the child prints goes to 
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import json
 import os
@@ -66,6 +67,8 @@ class EmulatorProcess:
             return
         if self._proc.poll() is None:
             os.killpg(self._proc.pid, signal.SIGTERM)
+            with contextlib.suppress(ProcessLookupError):  # a stopped child acts on it only now
+                os.killpg(self._proc.pid, signal.SIGCONT)
             try:
                 self._proc.wait(timeout=timeout_s)
             except subprocess.TimeoutExpired:

@@ -12,6 +12,7 @@ import asyncio
 import contextlib
 import gc
 import signal
+import threading
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
@@ -24,12 +25,13 @@ from kernel.app.operator import operator_server
 from kernel.app.report import CycleProgress
 from kernel.app.session import RunContext, bring_up, finish, open_run, report_progress
 from kernel.core.events import LinkEvent, LinkStatus
-from kernel.manifest import Manifest
+from kernel.manifest import Manifest, PolicySettings
 from kernel.shell.client import RobotClient
+from kernel.shell.link_budget import AdmissionPacer
 from kernel.shell.link_types import ClientConfig
 from kernel.shell.operator import OperatorServer
 from kernel.shell.realtime import restore, try_realtime
-from kernel.shell.supervisor import RestartPolicy, Supervisor
+from kernel.shell.supervisor import RestartPolicy, Supervisor, describe, failure_fields
 from kernel.shell.systemd import ServiceNotifier
 from kernel.shell.timer import MonotonicClock, PeriodicTimer
 from kernel.shell.worker import JobWorker
@@ -53,7 +55,7 @@ async def run_live(manifest: Manifest, journal_dir: Path | None,
         context.cell.world.close()
         context.files.close()
         raise
-    server: Any = None
+    server: _Launched | None = None
     worker = JobWorker(context.cell.gateway, context.sections, source_of(manifest))
     realtime = try_realtime()
     log.info("scheduling", detail=realtime.summary())
@@ -69,10 +71,12 @@ async def run_live(manifest: Manifest, journal_dir: Path | None,
             await bring_up(context)  # a device that is not there fails here, before anything
             url = f"ws://{manifest.policy.host}:{manifest.policy.port}"
             if not loop.stop_requested and manifest.policy.launch:
-                server = standins.load(standins.POLICIES, "reference")(context.cell.context)
+                server = _Launched(standins.load(standins.POLICIES, "reference")(
+                    context.cell.context))
                 url = server.start()
             if not loop.stop_requested:
-                client = RobotClient(ClientConfig(url=url), context.cell.gateway)
+                client = RobotClient(client_config(manifest.policy, url), context.cell.gateway,
+                                     pacer=loop.pacer, server=server)
                 await _supervise(context, client, worker, operator, loop, failures)
     finally:
         service.stopping("holding the arm and closing the device")
@@ -83,7 +87,7 @@ async def run_live(manifest: Manifest, journal_dir: Path | None,
         restore(realtime)
         service.close()
         if server is not None:
-            server.stop()
+            await asyncio.to_thread(server.stop)  # after a restart still under way, if any
         context.recorder.close()
         context.files.close()
     return finish(context, {
@@ -98,8 +102,50 @@ async def run_live(manifest: Manifest, journal_dir: Path | None,
     })
 
 
+def client_config(settings: PolicySettings, url: str) -> ClientConfig:
+    """The policy link's configuration from the manifest's ``[policy]`` table."""
+    return ClientConfig(
+        url=url, max_frame_bytes=settings.max_frame_bytes,
+        max_frames_per_s=settings.max_frames_per_s, max_chunks_per_s=settings.max_chunks_per_s,
+        max_requests_in_flight=settings.max_requests_in_flight,
+        request_timeout_s=settings.request_timeout_ms / 1000.0,
+        heartbeat_interval_s=settings.heartbeat_interval_ms / 1000.0,
+        heartbeat_timeout_s=settings.heartbeat_timeout_ms / 1000.0)
+
+
+class _Launched:
+    """The policy server this run started (a stand-in reached through the registry): the link
+    restarts it when it falls silent or refuses connections. Starting waits for the child's
+    READY line, so it runs on a thread, never on the loop; a lock keeps a restart and the final
+    stop from overlapping (the final stop waits for a restart under way, then stops it)."""
+
+    def __init__(self, server: Any) -> None:
+        self._server = server
+        self._lock = threading.Lock()
+
+    def start(self) -> str:
+        with self._lock:
+            return str(self._server.start())
+
+    def stop(self) -> None:
+        with self._lock:
+            self._server.stop()
+
+    async def restart(self) -> str:
+        return await asyncio.to_thread(self._cycle)
+
+    def _cycle(self) -> str:
+        with self._lock:
+            self._server.stop()
+            return str(self._server.start())
+
+
 class _Loop:
-    """The control loop and what it reports: progress, the tick hook, the service manager."""
+    """The control loop and what it reports: progress, the tick hook, the service manager.
+
+    After each tick it opens the period's admission window (:class:`AdmissionPacer`): chunk
+    admissions run right after the tick, or later only while half a period remains, so the
+    policy link's work never pushes a tick past its deadline."""
 
     def __init__(self, context: RunContext, progress: CycleProgress | None,
                  hook: TickHook | None, service: ServiceNotifier, scheduling: str) -> None:
@@ -107,6 +153,8 @@ class _Loop:
         self.service, self.scheduling = service, scheduling
         self.stop_requested = False
         self._status = ""
+        period = context.cell.core.config.control_period_ns
+        self.pacer = AdmissionPacer(context.manifest.policy.admissions_per_period, period // 2)
 
     async def run(self) -> None:
         manifest, cell = self.context.manifest, self.context.cell
@@ -121,6 +169,7 @@ class _Loop:
                 if tick.skipped or tick.lateness_ns > period // 2:
                     self.context.misses += max(1, tick.skipped)
                 await cell.controller.tick()
+                self.pacer.period_done(tick.deadline_ns + period)
                 self.service.alive()  # only a loop that completes its ticks feeds the watchdog
                 self._report()
                 if self.hook is not None and self.hook(self.context):
@@ -189,8 +238,8 @@ def task_failed(context: RunContext, failures: list[str], name: str,
     """A supervised task died: never silently. A dead policy link is a lost link for the core
     (LINK_LOST → DEGRADED: the arm holds until a new handshake); the critical tasks (control,
     recorder) end the run, and the run's shutdown holds the arm and closes the device."""
-    failures.append(f"{name}: {type(error).__name__}")
-    log.error("task failed", task=name, error=type(error).__name__)
+    failures.append(f"{name}: {describe(error)}")
+    log.error("task failed", task=name, **failure_fields(error))
     if name == "policy-link":
         gateway = context.cell.gateway
         gateway.feed(LinkEvent(t=gateway.now_ns(), status=LinkStatus.DOWN))

@@ -1,9 +1,10 @@
 """Admission: every gate, then the merge, then one decision line (docs/contract.md §3–§4).
 
 Order of work for one chunk: decode result → duplicate check (a duplicate is ignored and changes
-nothing) → content, identity, context, time and divergence gates → merge plan and projection
-(feasibility) → decision. Only an admitted chunk touches the queue, and it does so by one
-commit of a plan built beforehand.
+nothing) → does a new chunk answer a pending observation (one already answered by an admitted
+chunk is refused at once, ``OBSERVATION_ANSWERED``, with no other work) → content, identity,
+context, time and divergence gates → merge plan and projection (feasibility) → decision. Only
+an admitted chunk touches the queue, and it does so by one commit of a plan built beforehand.
 
 Two steps may be long (:mod:`kernel.core.jobs`): mapping a Cartesian chunk to joint targets and
 the exact projection of a proposal that fails the fast check. For those the chunk is parked and
@@ -77,6 +78,11 @@ def admit(state: CoreState, chunk: Chunk | MalformedChunk) -> None:
     seen = state.memory.classify(chunk.chunk_id, chunk.payload_hash)
     if seen is Seen.DUPLICATE:
         _ignore_duplicate(state, chunk)
+        return
+    if seen is Seen.NEW and state.observations.answered(chunk.observation_id):
+        # Not remembered either: a flood of second answers must not push real chunks out of
+        # the duplicate memory. (A reused chunk id is worse news: ID_CONFLICT, every gate.)
+        _decide(state, chunk.chunk_id, (R.OBSERVATION_ANSWERED,))
         return
     state.memory.remember(chunk.chunk_id, chunk.payload_hash)
     if state.config.cartesian is not None and _worth_mapping(state, chunk, seen):
@@ -311,6 +317,7 @@ def _commit(
         _decide(state, chunk.chunk_id, (R.MALFORMED,), detail="no merge plan")
         return
     plan.commit(state.queue)
+    state.observations.answer(chunk.observation_id)
     state.last_sequence = chunk.sequence
     state.fallback.clear_debounce()
     if state.watermarks is not None:

@@ -92,9 +92,11 @@ class MotionContext:
 
 def motion_for(m: MotionState, ctx: MotionContext, command: Cmd, owner: Owner,
                target: np.ndarray | None, sent: tuple[str, int] | None,
-               stream: tuple[np.ndarray, int] | None = None) -> Motion:
+               stream: tuple[np.ndarray, int] | None = None,
+               relax: float | None = None) -> Motion:
     """The motion effect for one tick's decision (see the module docstring). ``stream``: for
-    a queued action, its step from the action before and the action grid's interval."""
+    a queued action, its step from the action before and the action grid's interval.
+    ``relax``: the contact owner stops pressing and holds at that fraction of its stiffness."""
     _start(m, ctx)
     planner_tick = owner is Owner.PLANNER and command in (Cmd.SETPOINT, Cmd.RETREAT)
     resuming = planner_tick and not m.planner_had_tick
@@ -106,7 +108,7 @@ def motion_for(m: MotionState, ctx: MotionContext, command: Cmd, owner: Owner,
         _restart(m, ctx.measured)
         return Hold(gripper=m.gripper, owner=owner)
     if owner is Owner.CONTACT:
-        return _contact(m, ctx, command, target, sent is not None)
+        return _contact(m, ctx, command, target, sent is not None, relax)
     if planner_tick:
         return _planned(m, ctx, resuming, retreat=command is Cmd.RETREAT)
     goal = ctx.measured if target is None else np.asarray(target)[ctx.arm]
@@ -207,11 +209,13 @@ def _planner_effect(m: MotionState, q: tuple[float, ...], retreat: bool) -> Moti
 
 
 def _contact(m: MotionState, ctx: MotionContext, command: Cmd, target: np.ndarray | None,
-             bounded: bool) -> Motion:
+             bounded: bool, relax: float | None = None) -> Motion:
     contact = m.contact
     measured = _inside(m, ctx.measured)  # a measured overshoot is never a target
     if command is Cmd.RETREAT:
         contact.begin_retreat(measured)
+    elif relax is not None:
+        contact.relax(measured, relax)
     elif contact.state is ContactState.IDLE:
         contact.hold_at(measured)
     offer = np.asarray(target)[ctx.arm] if bounded and target is not None else None

@@ -136,6 +136,7 @@ class CoreState:
         dropped = self.queue.purge()
         self.epoch += 1
         self.last_sequence = None
+        self.observations.forget_answers()
         self.emit(QueueLine(t=self.t_ms, action=QueueAct.NEW_EPOCH, queue_epoch=self.epoch,
                             dropped=dropped, reason=reason))
         self._queue_reset()

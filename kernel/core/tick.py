@@ -1,11 +1,12 @@
 """The control tick: who owns this period, and what goes out (docs/contract.md §4, §7).
 
-Outside RUNNING the fallback state decides (hold, retreat, stop, human). In RUNNING the phase's
-executor decides: a policy phase sends the queued action in force, or holds at the measured
-state on underrun (a validated hold, never the last action repeated) and escalates to SAFE_HOLD
-if the underrun lasts; the contact owner runs the impedance law with the admitted bounded target
-if there is one; the planner runs its classical trajectory. Every tick that is not a policy
-setpoint carries its reason.
+Outside RUNNING the fallback state decides (hold, retreat, stop, human; in DEGRADED the phase's
+classical owner keeps its job, and contact ends as the phase card's ``link_loss`` says). In
+RUNNING the phase's executor decides: a policy phase sends the queued action in force, or holds
+at the measured state on underrun (a validated hold, never the last action repeated) and
+escalates to SAFE_HOLD if the underrun lasts; the contact owner runs the impedance law with the
+admitted bounded target if there is one; the planner runs its classical trajectory. Every tick
+that is not a policy setpoint carries its reason.
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ import numpy as np
 
 from assurance.clock import ns_to_ms
 from assurance.fallback import MODES, Command, Mode, Owner
+from assurance.policy import LinkLoss
 from assurance.queue import Row, SentRow
 from assurance.reasons import ReasonCode as R
 from kernel.core.authority import outside_envelope, validate
@@ -35,6 +37,8 @@ class TickCommand(msgspec.Struct, frozen=True, eq=False):
     sent: SentRef | None
     reason: R | None
     t_obs: int | None = None
+    relax: float | None = None
+    """The contact owner stops pressing and holds at this fraction of its stiffness."""
 
 
 def tick(state: CoreState) -> TickCommand:
@@ -71,7 +75,7 @@ def _motion(state: CoreState, decision: TickCommand, row: Row | None) -> Motion:
         stream = (row.segment.step_into(row.row), row.segment.dt)
     context = MotionContext(state.config, state.t, state.measured_q, state.emit)
     return motion_for(state.motion, context, decision.command, decision.owner, decision.target,
-                      sent, stream)
+                      sent, stream, decision.relax)
 
 
 def _watchdog(state: CoreState) -> None:
@@ -156,11 +160,17 @@ def _contact(state: CoreState, row: Row | None) -> TickCommand:
 
 
 def _degraded(state: CoreState) -> TickCommand:
-    """Without the policy link the phase's classical owner keeps its job; policy phases hold."""
+    """Without the policy link the phase's classical owner keeps its job and policy phases
+    hold; a contact phase ends contact as its card says (``link_loss``): the contact owner
+    retracts, or stops pressing and holds softly where it is."""
     cause = state.fallback.cause
     executor = state.card.executor
     if executor is Executor.CONTACT:
-        return TickCommand(Command.CONTACT, Owner.CONTACT, _hold(state), None, cause)
+        policy = state.card.policy
+        if policy.link_loss is LinkLoss.RETRACT:
+            return TickCommand(Command.RETREAT, Owner.CONTACT, None, None, cause)
+        return TickCommand(Command.CONTACT, Owner.CONTACT, _hold(state), None, cause,
+                           relax=policy.link_loss_hold_factor)
     if executor is Executor.PLANNER:
         command = Command.RETREAT if state.task.phase is TaskPhase.RETREAT else Command.SETPOINT
         return TickCommand(command, Owner.PLANNER, None, None, cause)

@@ -18,7 +18,7 @@ import numpy as np
 
 from assurance.clock import ms_to_ns
 from assurance.limits import JointLimits
-from assurance.policy import ForceBand, PhasePolicy
+from assurance.policy import ForceBand, LinkLoss, PhasePolicy
 from assurance.watermarks import WatermarkConfig
 from kernel.core.config import CoreConfig, MotionConfig
 from kernel.scenario.bounds import (
@@ -70,7 +70,8 @@ SECTION_KEYS: dict[str, frozenset[str]] = {
 """The keys each fail-closed section may hold (``phases`` is checked per card)."""
 PHASE_KEYS = frozenset({"max_observation_age_ms", "max_action_age_ms", "max_divergence",
                         "max_projection", "trim", "blend", "force_band", "ood_threshold",
-                        "controller_mode", "max_underrun_ms", "executor", "proposals"})
+                        "controller_mode", "max_underrun_ms", "executor", "proposals",
+                        "link_loss", "link_loss_hold_factor"})
 
 
 def check_keys(doc: Mapping[str, Any], where: Where) -> None:
@@ -284,6 +285,10 @@ def phase_policy(body: Mapping[str, Any], where: Where, span: float) -> PhasePol
         controller_mode=(text(body, "controller_mode", where) if body.get("controller_mode")
                          is not None else None),
         max_underrun_ns=_optional_ms(body, "max_underrun_ms", where),
+        link_loss=LinkLoss(choice(body, "link_loss", where, tuple(LinkLoss),
+                                  default.link_loss)),
+        link_loss_hold_factor=_fraction(body, "link_loss_hold_factor", where,
+                                        default.link_loss_hold_factor),
     )
 
 
@@ -291,6 +296,13 @@ def _distance(body: Mapping[str, Any], key: str, where: Where, default: float, s
               why: str) -> float:
     value = number(body, key, where, default, minimum=0)
     in_range(value, where.at(key), maximum=span, why=why)
+    return value
+
+
+def _fraction(body: Mapping[str, Any], key: str, where: Where, default: float) -> float:
+    value = number(body, key, where, default, positive=True)
+    if value > 1:
+        raise where.at(key).error(f"must be at most 1 (a fraction), got {value!r}")
     return value
 
 

@@ -6,8 +6,16 @@ through a :class:`Gateway` the shell implements: the client turns frames into ev
 core's answer decides what happens next (only its ``ACCEPT`` opens a session; its chunk lines
 are the admissions). Per connection: clock-sync burst, Hello, Offer → core → Decision, then
 observations on request, chunks in, heartbeats both ways. Any end of a connection feeds
-``LinkEvent(down)``; the client reconnects with bounded exponential backoff and always
-handshakes again, with the epoch the core started at the link loss.
+``LinkEvent(down)`` first, then says goodbye and closes within a bound; the client reconnects
+with bounded exponential backoff and always handshakes again, with the epoch the core started
+at the link loss. A policy server this run launched is restarted when it falls silent or stops
+accepting connections.
+
+What one peer can cost is bounded (:mod:`kernel.shell.link_budget`): frames and chunks over
+their rates are dropped and counted, chunks wait in a short queue for an admission slot the
+control loop hands out (:mod:`kernel.shell.link_intake`), and at most so many observations are
+in flight. The clock exchange is :mod:`kernel.shell.link_clock`, the per-connection state
+:mod:`kernel.shell.link_connection`.
 
 Expected failures (refused connections, closed sockets, protocol violations, silence, a
 rejected handshake) end the connection cleanly and are counted. Anything else is a bug and
@@ -20,63 +28,51 @@ import asyncio
 import contextlib
 import itertools
 import time
-from dataclasses import dataclass
 
 import msgspec
+import structlog
 from websockets.asyncio.client import ClientConnection, connect
 from websockets.exceptions import ConnectionClosed, InvalidHandshake
 
-from assurance.envelope import MalformedChunk, decode_wire_chunk
 from assurance.handshake import HandshakeDecision
 from kernel import wire
 from kernel.core import events as ev
 from kernel.core.effects import EndSession, RequestObservation
-from kernel.core.lines import ChunkLine, HandshakeLine
+from kernel.core.lines import HandshakeLine
+from kernel.shell.link_budget import AdmissionPacer, RequestWindow, TokenBucket
+from kernel.shell.link_clock import LinkClock
+from kernel.shell.link_connection import SILENCE, Connection, LinkEnd, LinkEnded, closed
+from kernel.shell.link_intake import ChunkIntake
 from kernel.shell.link_types import (
     ClientConfig,
     Gateway,
+    LaunchedServer,
     LinkCounters,
     LinkState,
 )
-from kernel.summary import ADMITTED
-from kernel.wire import ByeReason, ClockSample, Frame, Message, MessageType, ProtocolViolation
+from kernel.shell.supervisor import describe
+from kernel.wire import ByeReason, ClockSample, MessageType, ProtocolViolation
 
-_CLOSE_TOO_BIG = 1009
-
-
-class _LinkEnded(Exception):
-    """This connection is over; ``bye`` is what to tell the peer (None: nothing to say)."""
-
-    def __init__(self, bye: ByeReason | None, detail: str, oversized: bool = False) -> None:
-        super().__init__(detail)
-        self.bye = bye
-        self.detail = detail
-        self.oversized = oversized
-
-
-@dataclass(slots=True, eq=False)
-class _Link:
-    """Per-connection state; a new one for every connection."""
-
-    ws: ClientConnection
-    last_rx: float
-    offer: asyncio.Future[wire.Offer]
-    accepted: bool = False
-    version: int | None = None
-    pong: asyncio.Future[tuple[int, int]] | None = None
-    """The answer to the one ping in flight (pings of a burst go one at a time)."""
-    ping_seq: int = 0
+log = structlog.get_logger("warden.link")
 
 
 class RobotClient:
-    def __init__(self, config: ClientConfig, gateway: Gateway) -> None:
+    def __init__(self, config: ClientConfig, gateway: Gateway, *,
+                 pacer: AdmissionPacer | None = None,
+                 server: LaunchedServer | None = None) -> None:
         self.config = config
+        self.url = config.url
         self.counters = LinkCounters()
         self.state = LinkState.IDLE
         self.fingerprint: str | None = None
         self.protocol: int | None = None
-        self.clock: ClockSample | None = None
         self._gateway = gateway
+        self._server = server
+        self._clock = LinkClock(config, gateway)
+        self._frames = TokenBucket(config.max_frames_per_s)
+        self._window = RequestWindow(config.max_requests_in_flight, config.request_timeout_s)
+        self._intake = ChunkIntake(gateway, self.counters, config.max_chunks_per_s,
+                                   self._window, pacer, self._admitted)
         self._wanted = asyncio.Event()
         self._end = asyncio.Event()
         self._end_reason = ByeReason.SHUTDOWN
@@ -88,6 +84,11 @@ class RobotClient:
         gateway.on(RequestObservation, self._on_request)
         gateway.on(EndSession, self._on_session_end)
 
+    @property
+    def clock(self) -> ClockSample | None:
+        """The clock sync in force (the last burst's best sample)."""
+        return self._clock.sample
+
     # -- the core's side ---------------------------------------------------------------------
 
     def request(self) -> None:
@@ -96,6 +97,9 @@ class RobotClient:
 
     def _on_request(self, _: RequestObservation) -> None:
         self.request()
+
+    def _admitted(self) -> None:
+        self._healthy = True  # the session worked: the backoff starts from scratch again
 
     def _on_session_end(self, _: EndSession) -> None:
         """The core ended the session (DEGRADED needs a new handshake): reconnect."""
@@ -116,7 +120,7 @@ class RobotClient:
         while not self._stopping:
             self._healthy = False
             try:
-                await self._connect_once()
+                ended = await self._connect_once()
             finally:
                 self._report_link(up=False)
             if self._stopping:
@@ -124,55 +128,87 @@ class RobotClient:
             if self._healthy:  # the session worked: the next failure starts from scratch
                 delay = self.config.backoff_initial_s
             self.state = LinkState.BACKOFF
+            await self._revive(ended)
             await self._pause(delay)
             delay = min(delay * 2, self.config.backoff_max_s)
             self.counters.reconnects += 1
         self.state = LinkState.STOPPED
 
+    async def _revive(self, ended: LinkEnd) -> None:
+        """Restart a server this run launched once it stopped answering or accepting."""
+        if self._server is None or ended is LinkEnd.OTHER or self._stopping:
+            return
+        try:
+            self.url = await self._server.restart()
+        except Exception as error:  # a child process that will not start: try again later
+            self.counters.server_restart_failures += 1
+            log.warning("policy server restart failed", detail=describe(error))
+            return
+        self.counters.server_restarts += 1
+        log.info("policy server restarted", after=str(ended))
+
     # -- one connection --------------------------------------------------------------------
 
-    async def _connect_once(self) -> None:
+    async def _connect_once(self) -> LinkEnd:
         self.state = LinkState.CONNECTING
         cfg = self.config
         try:
             async with connect(
-                cfg.url, max_size=cfg.max_frame_bytes, compression=None, ping_interval=None,
+                self.url, max_size=cfg.max_frame_bytes, compression=None, ping_interval=None,
                 open_timeout=cfg.open_timeout_s, close_timeout=cfg.close_timeout_s, proxy=None,
             ) as ws:
-                await self._serve(ws)
+                return await self._serve(ws)
         except (OSError, TimeoutError, InvalidHandshake):
             self.counters.connect_failures += 1  # nothing to close; back off and retry
+            return LinkEnd.UNREACHABLE
 
-    async def _serve(self, ws: ClientConnection) -> None:
+    async def _serve(self, ws: ClientConnection) -> LinkEnd:
         self.counters.connects += 1
         self._report_link(up=True)
         self._end.clear()
         if self._stopping:
             self._end.set()
-        link = _Link(ws, time.monotonic(), asyncio.get_running_loop().create_future())
+        link = Connection(ws, self.counters, time.monotonic(),
+                          asyncio.get_running_loop().create_future())
+        self._intake.begin()
+        ended: LinkEnded | None = None
         try:
             async with asyncio.TaskGroup() as tasks:
                 tasks.create_task(self._read(link))
+                tasks.create_task(self._intake.run())
                 tasks.create_task(self._heartbeat(link))
                 tasks.create_task(self._watch_end())
                 tasks.create_task(self._open_session(link, tasks))
-        except* _LinkEnded as group:
-            await self._finish(link, group.exceptions[0])  # type: ignore[arg-type]
+        except* LinkEnded as group:
+            ended = group.exceptions[0]  # type: ignore[assignment]
+        if ended is None:  # unreachable: every task runs until the link ends
+            return LinkEnd.OTHER
+        self._intake.end()
+        self._report_link(up=False)  # the core first: it never waits for a goodbye
+        await self._finish(link, ended)
+        return LinkEnd.SILENT if ended.bye in SILENCE else LinkEnd.OTHER
 
-    async def _finish(self, link: _Link, ended: _LinkEnded) -> None:
+    async def _finish(self, link: Connection, ended: LinkEnded) -> None:
+        """Say goodbye and close, within ``close_timeout_s``; a silent peer is not waited for
+        (its transport is aborted once the goodbye is written)."""
         self.state = LinkState.CLOSING
         self.counters.oversized += ended.oversized  # counted here: once per connection
-        if ended.bye is not None:
-            with contextlib.suppress(ConnectionClosed):
-                bye = wire.Bye(reason=ended.bye, detail=ended.detail[:120])
-                await link.ws.send(wire.encode(bye))
-                self.counters.byes_sent += 1
-        code = 1002 if ended.bye is ByeReason.PROTOCOL_VIOLATION else 1000
-        await link.ws.close(code, str(ended.bye or "closed"))
+        silent = ended.bye in SILENCE
+        with contextlib.suppress(TimeoutError, ConnectionClosed):
+            async with asyncio.timeout(self.config.close_timeout_s):
+                if ended.bye is not None:
+                    bye = wire.Bye(reason=ended.bye, detail=ended.detail[:120])
+                    await link.ws.send(wire.encode(bye))
+                    self.counters.byes_sent += 1
+                if not silent:
+                    code = 1002 if ended.bye is ByeReason.PROTOCOL_VIOLATION else 1000
+                    await link.ws.close(code, str(ended.bye or "closed"))
+        if link.ws.transport is not None:
+            link.ws.transport.abort()  # no-op once closed; never waits for a silent peer
 
     async def _watch_end(self) -> None:
         await self._end.wait()
-        raise _LinkEnded(self._end_reason, "ended by the robot side")
+        raise LinkEnded(self._end_reason, "ended by the robot side")
 
     async def _pause(self, delay: float) -> None:
         with contextlib.suppress(TimeoutError):
@@ -181,24 +217,25 @@ class RobotClient:
 
     # -- handshake -------------------------------------------------------------------------
 
-    async def _open_session(self, link: _Link, tasks: asyncio.TaskGroup) -> None:
+    async def _open_session(self, link: Connection, tasks: asyncio.TaskGroup) -> None:
         self.state = LinkState.HANDSHAKING
         try:
             async with asyncio.timeout(self.config.handshake_timeout_s):
-                await self._sync_clock(link)
-                await self._send(link, wire.Hello(client_id=self.config.client_id,
+                await self._clock.sync(link)
+                await link.send(wire.Hello(client_id=self.config.client_id,
                                                   protocol=self.config.protocol,
                                                   hello=self._gateway.client_side_hello()))
                 offer = await link.offer
         except TimeoutError as error:
-            raise _LinkEnded(ByeReason.HANDSHAKE_TIMEOUT, "no offer in time") from error
+            raise LinkEnded(ByeReason.HANDSHAKE_TIMEOUT, "no offer in time") from error
         await self._decide(link, offer)
         tasks.create_task(self._requests(link))
-        tasks.create_task(self._refresh_clock(link))
+        tasks.create_task(self._clock.refresh(link))
 
-    async def _decide(self, link: _Link, offer: wire.Offer) -> None:
+    async def _decide(self, link: Connection, offer: wire.Offer) -> None:
         """The core decides; the client only carries its decision back to the server."""
         self._wanted.clear()  # requests made before this handshake are not for its session
+        self._window.clear()
         step = self._gateway.feed(ev.HandshakeEvent(t=self._gateway.now_ns(),
                                                     offer=msgspec.to_builtins(offer.offer)))
         verdict = next((line for line in step.lines if isinstance(line, HandshakeLine)), None)
@@ -207,157 +244,112 @@ class RobotClient:
         decision = HandshakeDecision(decision=verdict.decision, fingerprint=verdict.fingerprint,
                                      reasons=tuple(verdict.reasons), protocol=verdict.protocol)
         epoch = self._gateway.client_side_hello().queue_epoch
-        await self._send(link, wire.Decision(decision=decision, queue_epoch=epoch))
+        await link.send(wire.Decision(decision=decision, queue_epoch=epoch))
         if verdict.decision != "ACCEPT" or verdict.protocol is None:
             self.counters.handshakes_rejected += 1
-            raise _LinkEnded(ByeReason.HANDSHAKE_REJECTED, ",".join(verdict.reasons))
+            raise LinkEnded(ByeReason.HANDSHAKE_REJECTED, ",".join(verdict.reasons))
         self.counters.handshakes_accepted += 1
         link.accepted, link.version = True, verdict.protocol
         self.fingerprint, self.protocol = verdict.fingerprint, verdict.protocol
         self.state = LinkState.ACCEPTED
-        await self._report_clock(link)
+        await self._clock.report(link)
 
-    # -- clock -----------------------------------------------------------------------------
+    # -- observations out ------------------------------------------------------------------
 
-    async def _sync_clock(self, link: _Link) -> None:
-        samples = [await self._ping(link) for _ in range(self.config.clock_burst)]
-        best = wire.best_sample(samples)
-        if best is None:
-            raise _LinkEnded(ByeReason.PROTOCOL_VIOLATION, "no usable clock sample")
-        self.clock = best
-        self.counters.clock_syncs += 1
-        self._gateway.feed(ev.ClockSyncEvent(
-            t=self._gateway.now_ns(), domain=wire.SERVER_CLOCK_DOMAIN, offset=best.offset,
-            round_trip=best.round_trip))
-
-    async def _report_clock(self, link: _Link) -> None:
-        if link.version is not None and link.version >= 2 and self.clock is not None:
-            await self._send(link, wire.ClockReport(offset=self.clock.offset,
-                                                    round_trip=self.clock.round_trip))
-
-    async def _ping(self, link: _Link) -> ClockSample:
-        link.ping_seq += 1
-        link.pong = answer = asyncio.get_running_loop().create_future()
-        t0 = self._gateway.now_ns()
-        try:
-            await self._send(link, wire.ClockPing(seq=link.ping_seq, t0=t0))
-            async with asyncio.timeout(self.config.clock_ping_timeout_s):
-                t_server, t1 = await answer
-        except TimeoutError as error:
-            raise _LinkEnded(ByeReason.CLOCK_TIMEOUT, "clock ping unanswered") from error
-        finally:
-            link.pong = None
-        self.counters.clock_round_trips += 1
-        return ClockSample(t0=t0, t_server=t_server, t1=t1)
-
-    async def _refresh_clock(self, link: _Link) -> None:
-        while True:
-            await asyncio.sleep(self.config.clock_refresh_s)
-            await self._sync_clock(link)
-            await self._report_clock(link)
-
-    # -- traffic ---------------------------------------------------------------------------
-
-    async def _requests(self, link: _Link) -> None:
+    async def _requests(self, link: Connection) -> None:
+        window = self._window
         while True:
             await self._wanted.wait()
+            if not window.open():  # enough in flight: send when one is answered or expires
+                self.counters.requests_waited += 1
+                while not window.open():
+                    window.changed.clear()
+                    with contextlib.suppress(TimeoutError):
+                        async with asyncio.timeout(window.wait_s()):
+                            await window.changed.wait()
             self._wanted.clear()
-            sample = self._gateway.capture_observation()
-            t = self._gateway.now_ns()
-            observation_id = f"{self.config.client_id}/{next(self._observation_ids)}"
-            self._gateway.feed(ev.ObservationEvent(t=t, observation_id=observation_id))
-            epoch = self._gateway.client_side_hello().queue_epoch
-            await self._send(link, wire.Observation(
-                observation_id=observation_id, t_event=t, queue_epoch=epoch,
-                task_phase=str(sample.task_phase), q=wire.vector_payload(sample.q),
-                qd=wire.optional_payload(sample.qd), wrench=wire.optional_payload(sample.wrench),
-                gripper=sample.gripper))
-            self.counters.observations_sent += 1
+            await self._observe(link)
+            self.counters.requests_expired = window.expired
 
-    async def _heartbeat(self, link: _Link) -> None:
+    async def _observe(self, link: Connection) -> None:
+        sample = self._gateway.capture_observation()
+        t = self._gateway.now_ns()
+        observation_id = f"{self.config.client_id}/{next(self._observation_ids)}"
+        self._gateway.feed(ev.ObservationEvent(t=t, observation_id=observation_id))
+        self._window.sent(observation_id)
+        epoch = self._gateway.client_side_hello().queue_epoch
+        await link.send(wire.Observation(
+            observation_id=observation_id, t_event=t, queue_epoch=epoch,
+            task_phase=str(sample.task_phase), q=wire.vector_payload(sample.q),
+            qd=wire.optional_payload(sample.qd), wrench=wire.optional_payload(sample.wrench),
+            gripper=sample.gripper))
+        self.counters.observations_sent += 1
+
+    async def _heartbeat(self, link: Connection) -> None:
+        """Send a heartbeat every interval; declare the peer silent the moment it has been for
+        ``heartbeat_timeout_s`` (woken at that instant, not at the next heartbeat)."""
         interval, timeout = self.config.heartbeat_interval_s, self.config.heartbeat_timeout_s
+        next_send = time.monotonic() + interval
         for seq in itertools.count(1):
-            await asyncio.sleep(interval)
-            silent = time.monotonic() - link.last_rx
-            if silent > 1.5 * interval:  # the peer's heartbeat (or anything) is overdue
+            while (now := time.monotonic()) < next_send:
+                await asyncio.sleep(min(next_send, link.last_rx + timeout) - now)
+                if time.monotonic() - link.last_rx > timeout:
+                    await self._declare_silence(link, timeout)
+            if now - link.last_rx > 1.5 * interval:  # the peer's heartbeat (or anything) is late
                 self.counters.heartbeat_misses += 1
-            if silent > timeout:
-                self.counters.link_timeouts += 1
-                raise _LinkEnded(ByeReason.HEARTBEAT_TIMEOUT, f"peer silent for {silent:.3f} s")
-            await self._send(link, wire.Heartbeat(seq=seq, t_send=self._gateway.now_ns()))
+            await link.send(wire.Heartbeat(seq=seq, t_send=self._gateway.now_ns()))
+            next_send += interval
 
-    async def _read(self, link: _Link) -> None:
+    async def _declare_silence(self, link: Connection, timeout: float) -> None:
+        # After a stall of this loop, frames may sit unread: let the reader run first.
+        for _ in range(3):
+            await asyncio.sleep(0)
+        silent = time.monotonic() - link.last_rx
+        if silent > timeout:
+            self.counters.link_timeouts += 1
+            raise LinkEnded(ByeReason.HEARTBEAT_TIMEOUT, f"peer silent for {silent:.3f} s")
+
+    # -- frames in -------------------------------------------------------------------------
+
+    async def _read(self, link: Connection) -> None:
         try:
             async for data in link.ws:
-                t_receive = self._gateway.now_ns()
                 link.last_rx = time.monotonic()
                 self.counters.frames_in += 1
                 self.counters.bytes_in += len(data)
-                self._dispatch(link, data, t_receive)
+                if not self._frames.take():
+                    self.counters.frames_dropped += 1  # over the frame rate: not even decoded
+                    continue
+                self._dispatch(link, data)
         except ConnectionClosed as error:
-            raise self._closed(error) from error
+            raise closed(error) from error
         except ProtocolViolation as error:
-            self.counters.protocol_violations += 1
-            raise _LinkEnded(error.reason, error.detail) from error
-        raise _LinkEnded(None, "closed by the server")
+            raise link.violation(error) from error
+        raise LinkEnded(None, "closed by the server")
 
-    def _dispatch(self, link: _Link, data: bytes | str, t_receive: int) -> None:
+    def _dispatch(self, link: Connection, data: bytes | str) -> None:
         frame = wire.decode_frame(data)
         kind = wire.message_type(frame, link.version)
         if kind is MessageType.CHUNK:
-            self._on_chunk(link, frame, t_receive)
+            if not link.accepted:  # never let a chunk reach the core outside a session
+                raise ProtocolViolation("chunk before the session was accepted")
+            self._intake.put(frame)
             return
         message = wire.decode_body(frame, kind)
         if isinstance(message, wire.ClockPong):
-            self._on_pong(link, message, t_receive)
+            self._clock.on_pong(link, message, self._gateway.now_ns())
         elif isinstance(message, wire.Offer) and not link.offer.done():
             link.offer.set_result(message)
         elif isinstance(message, wire.Bye):
             self.counters.byes_received += 1
-            raise _LinkEnded(None, f"server said bye: {message.reason}")
+            raise LinkEnded(None, f"server said bye: {message.reason[:40]}")
         elif not isinstance(message, wire.Heartbeat):
             raise ProtocolViolation(f"unexpected {kind} from the server")
 
-    def _on_chunk(self, link: _Link, frame: Frame, t_receive: int) -> None:
-        if not link.accepted:  # never let a chunk reach the core outside an accepted session
-            raise ProtocolViolation("chunk before the session was accepted")
-        self.counters.chunks_in += 1
-        chunk = decode_wire_chunk(frame.body, t_receive)
-        if isinstance(chunk, MalformedChunk):
-            self.counters.malformed += 1
-        for line in self._gateway.feed(ev.ChunkEvent(t_receive, chunk, bytes(frame.body))).lines:
-            if isinstance(line, ChunkLine):
-                admitted = line.decision in ADMITTED
-                self._healthy |= admitted
-                self.counters.chunks_admitted += admitted
-                self.counters.chunks_refused += not admitted
-
-    def _on_pong(self, link: _Link, pong: wire.ClockPong, t_receive: int) -> None:
-        # a pong for a ping that already timed out carries no usable sample: dropped
-        if link.pong is not None and pong.seq == link.ping_seq and not link.pong.done():
-            link.pong.set_result((pong.t_server, t_receive))
-
     # -- helpers ---------------------------------------------------------------------------
-
-    async def _send(self, link: _Link, message: Message) -> None:
-        data = wire.encode(message)
-        try:
-            await link.ws.send(data)
-        except ConnectionClosed as error:
-            raise self._closed(error) from error
-        self.counters.frames_out += 1
-        self.counters.bytes_out += len(data)
-
-    @staticmethod
-    def _closed(error: ConnectionClosed) -> _LinkEnded:
-        if error.sent is not None and error.sent.code == _CLOSE_TOO_BIG:
-            return _LinkEnded(None, "frame over the size limit", oversized=True)
-        return _LinkEnded(None, f"connection closed ({error})")
 
     def _report_link(self, up: bool) -> None:
         if up or not self._down_reported:  # one "down" per loss, not one per failed attempt
             self._down_reported = not up
             status = ev.LinkStatus.UP if up else ev.LinkStatus.DOWN
             self._gateway.feed(ev.LinkEvent(t=self._gateway.now_ns(), status=status))
-
-

@@ -16,7 +16,7 @@ meanwhile; the caller's cancellation is re-raised afterwards, never swallowed.
 from __future__ import annotations
 
 import asyncio
-from collections.abc import Awaitable, Callable
+from collections.abc import Awaitable, Callable, Iterator
 from dataclasses import dataclass
 from enum import StrEnum
 from types import TracebackType
@@ -89,8 +89,52 @@ class _Child:
         return ChildStatus(self.name, self.critical, self.state, self.restarts, self.last_failure)
 
 
+MAX_DESCRIBED = 4
+"""Sub-exceptions of a group named in a failure's description (the rest are counted)."""
+MAX_MESSAGE = 160
+
+
+def describe(exc: BaseException) -> str:
+    """``Type: message`` of a failure, bounded; an exception group names its first few
+    sub-exceptions (nested groups flattened) instead of only saying "ExceptionGroup".
+
+    A log line stays bounded (docs: kernel/shell/logging.py), so each message is cut at
+    :data:`MAX_MESSAGE` characters.
+    """
+    if not isinstance(exc, BaseExceptionGroup):
+        return _one(exc)
+    leaves = list(_leaves(exc))
+    named = "; ".join(_one(leaf) for leaf in leaves[:MAX_DESCRIBED])
+    more = f"; and {len(leaves) - MAX_DESCRIBED} more" if len(leaves) > MAX_DESCRIBED else ""
+    return f"{type(exc).__name__} of {len(leaves)}: {named}{more}"
+
+
+def failure_fields(exc: BaseException) -> dict[str, object]:
+    """Log fields for a failure: its type and message, and an exception group's sub-exceptions
+    as a list (each one a bounded log value of its own)."""
+    fields: dict[str, object] = {"error": type(exc).__name__, "detail": _one(exc)}
+    if isinstance(exc, BaseExceptionGroup):
+        fields["sub_errors"] = [_one(leaf) for leaf in list(_leaves(exc))[:MAX_DESCRIBED]]
+    return fields
+
+
+def _one(exc: BaseException) -> str:
+    message = str(exc)
+    if len(message) > MAX_MESSAGE:
+        message = f"{message[:MAX_MESSAGE]}..."
+    return f"{type(exc).__name__}: {message}" if message else type(exc).__name__
+
+
+def _leaves(group: BaseExceptionGroup) -> Iterator[BaseException]:
+    for exc in group.exceptions:
+        if isinstance(exc, BaseExceptionGroup):
+            yield from _leaves(exc)
+        else:
+            yield exc
+
+
 def _log_failure(name: str, exc: BaseException) -> None:
-    _log.error("child_failed", child=name, reason=exc)
+    _log.error("child_failed", child=name, **failure_fields(exc))
 
 
 class Supervisor:

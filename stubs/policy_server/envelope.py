@@ -48,6 +48,7 @@ INT64_MAX = 2**63 - 1
 Text = Annotated[str, msgspec.Meta(min_length=1)]
 Time = Annotated[int, msgspec.Meta(ge=-INT64_MAX, le=INT64_MAX)]
 Step = Annotated[int, msgspec.Meta(gt=0, le=INT64_MAX)]
+Count = Annotated[int, msgspec.Meta(ge=0, le=INT64_MAX)]
 ActionIndex = Annotated[int, msgspec.Meta(ge=0)]
 
 
@@ -60,8 +61,8 @@ class ChunkEnvelope(msgspec.Struct, frozen=True, kw_only=True):
     """The body of a ``chunk`` frame. Times are integer nanoseconds in ``clock_domain``."""
 
     chunk_id: Text
-    sequence: int
-    queue_epoch: int
+    sequence: Count
+    queue_epoch: Count
     policy_checkpoint: Text
     config_hash: Text
     skill_version: Text

@@ -14,19 +14,36 @@ Two kinds of fault:
   (``unknown_type_after``), a clean close (``close_after``) or total silence, heartbeats included
   (``stall_after``).
 
-And: ``checkpoint`` (every chunk claims another checkpoint than the one offered),
+Floods, on the affected connections once a session is accepted (what a misbehaving server
+costs the robot side): ``flood_chunks_per_s`` (that many extra chunks a second, each the last
+answer again under a new chunk id and sequence, so it cites an observation already answered;
+before the first answer, a chunk citing an observation never sent),
+``junk_frame_bytes`` (a frame of that many bytes that is not an envelope, ``junk_frames_per_s``
+times a second), ``big_chunk_rows`` (every answer carries that many actions: 20000 rows of 6
+float64 are a 960 kB chunk).
+
+And: ``clock_t_server`` (every clock pong on an affected connection claims this server time,
+however implausible: ``18446744073709551615`` is 2**64 - 1),
+``checkpoint`` (every chunk claims another checkpoint than the one offered),
 ``chunk_before_offer`` (a chunk sent before the handshake), ``resend_on_reconnect`` (after a new
 handshake, first resend the last N chunks produced before it, dropped ones included).
 """
 
 from __future__ import annotations
 
+import asyncio
 import math
+from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, fields
 
 import msgspec
 
-from stubs.policy_server.envelope import ChunkEnvelope, chunk_body_frame, encode_chunk_body
+from stubs.policy_server.envelope import (
+    ChunkEnvelope,
+    chunk_body_frame,
+    encode_chunk_body,
+    encode_chunk_frame,
+)
 from stubs.policy_server.protocol import MAX_FRAME_BYTES, ArrayPayload, encode_raw
 
 _FRACTIONS = ("drop", "duplicate", "reorder", "spike", "garbage", "nonfinite", "wrong_dim")
@@ -43,6 +60,7 @@ class FaultConfig:
     nonfinite: float = 0.0
     wrong_dim: float = 0.0
     checkpoint: str | None = None
+    clock_t_server: int | None = None
     garbage_frame_after: int | None = None
     oversized_after: int | None = None
     unknown_type_after: int | None = None
@@ -50,6 +68,10 @@ class FaultConfig:
     stall_after: int | None = None
     chunk_before_offer: bool = False
     resend_on_reconnect: int = 0
+    flood_chunks_per_s: float = 0.0
+    junk_frame_bytes: int = 0
+    junk_frames_per_s: float = 10.0
+    big_chunk_rows: int = 0
     affect_connections: int = 1
 
     def __post_init__(self) -> None:
@@ -130,6 +152,11 @@ def garbage_chunk_body(chunk: ChunkEnvelope) -> bytes:
     return encode_chunk_body(msgspec.structs.replace(chunk, actions=short))
 
 
+def junk_frame(size: int) -> bytes:
+    """``size`` bytes that are not an envelope (0xc1 never starts a MessagePack value)."""
+    return b"\xc1" * size
+
+
 def garbage_frame() -> bytes:
     """Not an envelope at all: 0xc1 is a byte MessagePack never uses."""
     return b"\xc1garbage\x00\xff"
@@ -141,3 +168,34 @@ def oversized_frame() -> bytes:
 
 def unknown_type_frame() -> bytes:
     return encode_raw("telemetry", msgspec.msgpack.encode({"note": "not in this protocol"}))
+
+
+# -- floods ------------------------------------------------------------------------------------
+
+Send = Callable[[bytes], Awaitable[None]]
+
+
+async def flood_chunks(per_s: float, last: Callable[[], ChunkEnvelope],
+                       next_sequence: Callable[[int], int], send: Send) -> None:
+    """The chunk ``last()`` returns, ``per_s`` times a second, each under a new id and
+    sequence (sent in batches every 10 ms)."""
+    batch_s = 0.01
+    owed = 0.0
+    while True:
+        await asyncio.sleep(batch_s)
+        chunk = last()
+        owed += per_s * batch_s
+        for _ in range(int(owed)):
+            sequence = next_sequence(chunk.queue_epoch)
+            copy = msgspec.structs.replace(chunk, chunk_id=f"flood-{sequence}",
+                                           sequence=sequence)
+            await send(encode_chunk_frame(copy))
+        owed -= int(owed)
+
+
+async def flood_junk(size: int, per_s: float, send: Send) -> None:
+    """A frame of ``size`` bytes that is not an envelope, ``per_s`` times a second."""
+    frame = junk_frame(size)
+    while True:
+        await asyncio.sleep(1.0 / per_s)
+        await send(frame)

@@ -11,6 +11,7 @@ The body stays undecoded until the type is known, so a broken body is still attr
 from __future__ import annotations
 
 from enum import StrEnum
+from typing import Annotated
 
 import msgspec
 import numpy as np
@@ -23,6 +24,15 @@ MAX_FRAME_BYTES = 1 << 20
 """The transport refuses larger frames (websocket close 1009), on both sides."""
 SERVER_CLOCK_DOMAIN = "server"
 """The ``clock_domain`` of every time this server writes."""
+
+INT64_MAX = 2**63 - 1
+Time = Annotated[int, msgspec.Meta(ge=-INT64_MAX, le=INT64_MAX)]
+"""A time or duration in ns: ``|t| <= 2**63 - 1``."""
+Count = Annotated[int, msgspec.Meta(ge=0, le=INT64_MAX)]
+"""A sequence number or a queue epoch: ``0 <= n <= 2**63 - 1``."""
+Offset = Annotated[int, msgspec.Meta(ge=-(2**62), le=2**62)]
+"""A measured clock offset: ``|offset| <= 2**62``."""
+Duration = Annotated[int, msgspec.Meta(ge=0, le=INT64_MAX)]
 
 
 class MessageType(StrEnum):
@@ -95,31 +105,31 @@ class Offer(msgspec.Struct, frozen=True, kw_only=True):
 
 class Decision(msgspec.Struct, frozen=True, kw_only=True):
     decision: HandshakeDecision
-    queue_epoch: int
+    queue_epoch: Count
 
 
 class ClockPing(msgspec.Struct, frozen=True, kw_only=True):
-    seq: int
-    t0: int
+    seq: Count
+    t0: Time
 
 
 class ClockPong(msgspec.Struct, frozen=True, kw_only=True):
-    seq: int
-    t0: int
-    t_server: int
+    seq: Count
+    t0: Time
+    t_server: Time
 
 
 class ClockReport(msgspec.Struct, frozen=True, kw_only=True):
-    offset: int
-    round_trip: int
+    offset: Offset
+    round_trip: Duration
 
 
 class Observation(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     """Only what a robot measures: an unknown field (a goal, a target) is a violation."""
 
     observation_id: str
-    t_event: int
-    queue_epoch: int
+    t_event: Time
+    queue_epoch: Count
     task_phase: str
     q: ArrayPayload
     qd: ArrayPayload | None = None
@@ -128,8 +138,8 @@ class Observation(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
 
 
 class Heartbeat(msgspec.Struct, frozen=True, kw_only=True):
-    seq: int
-    t_send: int
+    seq: Count
+    t_send: Time
 
 
 class Bye(msgspec.Struct, frozen=True, kw_only=True):

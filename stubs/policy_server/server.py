@@ -34,6 +34,8 @@ from stubs.policy_server.envelope import (
 from stubs.policy_server.faults import (
     ChunkFaults,
     FaultPlan,
+    flood_chunks,
+    flood_junk,
     garbage_chunk_body,
     garbage_frame,
     oversized_frame,
@@ -159,6 +161,8 @@ class _Connection:
         self.client_offset: int | None = None
         self.version: int | None = None
         self.held: bytes | None = None
+        self.last_chunk: ChunkEnvelope | None = None
+        """The last answer sent: what a chunk flood repeats under new ids."""
         self.delivered = 0
         self.last_rx = time.monotonic()
         self.tasks: asyncio.TaskGroup | None = None
@@ -212,7 +216,9 @@ class _Connection:
             raise ProtocolViolation(f"a client does not send {kind}")
         message = decode_body(frame, kind)
         if isinstance(message, ClockPing):
-            await self._send(ClockPong(seq=message.seq, t0=message.t0, t_server=t))
+            hostile = self.config.faults.clock_t_server if self.faulty else None
+            await self._send(ClockPong(seq=message.seq, t0=message.t0,
+                                       t_server=t if hostile is None else hostile))
         elif isinstance(message, Hello):
             await self._on_hello(message)
         elif isinstance(message, Decision):
@@ -254,6 +260,7 @@ class _Connection:
             raise _Closed(ByeReason.FINGERPRINT_MISMATCH, f"server computed {own}")
         self.accepted, self.version = True, decision.protocol
         await self._resend(message.queue_epoch)
+        self._start_floods()
 
     async def _resend(self, epoch: int) -> None:
         """Fault: replay chunks produced for earlier epochs, as a confused server would."""
@@ -262,6 +269,19 @@ class _Connection:
         for frame in old[-count:] if count else []:
             self.stats.chunks_resent += 1
             await self._send_chunk(frame)
+
+    def _start_floods(self) -> None:
+        faults = self.config.faults
+        if not self.faulty or self.tasks is None:
+            return
+        if faults.flood_chunks_per_s > 0:
+            unsolicited = self._unsolicited_envelope()  # until there is a last answer
+            self.tasks.create_task(flood_chunks(
+                faults.flood_chunks_per_s, lambda: self.last_chunk or unsolicited,
+                self.server.next_sequence, self._send_chunk))
+        if faults.junk_frame_bytes > 0:
+            self.tasks.create_task(flood_junk(faults.junk_frame_bytes, faults.junk_frames_per_s,
+                                              self._send_raw))
 
     def _on_observation(self, observation: Observation, t: int) -> None:
         if not self.accepted or self.tasks is None:
@@ -295,6 +315,8 @@ class _Connection:
             actions[len(actions) // 2, 0] = np.nan
         if plan.wrong_dim:
             actions = np.hstack([actions, np.zeros((len(actions), 1))])
+        if self.faulty and cfg.faults.big_chunk_rows > 0:
+            actions = np.resize(actions, (cfg.faults.big_chunk_rows, actions.shape[1]))
         epoch = observation.queue_epoch
         sequence = self.server.next_sequence(epoch)
         now = self.server.now_ns()
@@ -311,6 +333,7 @@ class _Connection:
         frame = (chunk_body_frame(garbage_chunk_body(chunk)) if plan.garbage
                  else encode_chunk_frame(chunk))
         self.server.history.append((chunk.queue_epoch, frame))
+        self.last_chunk = chunk
         self.stats.chunks_produced += 1
         if self.stalled or plan.drop:
             self.stats.chunks_dropped += 1
@@ -342,13 +365,17 @@ class _Connection:
             raise _Closed(ByeReason.FAULT_INJECTED, f"closing after {delivered} chunks")
 
     def _unsolicited_chunk(self) -> bytes:
+        return encode_chunk_frame(self._unsolicited_envelope())
+
+    def _unsolicited_envelope(self) -> ChunkEnvelope:
+        """A chunk answering no observation the client sent."""
         epoch = self.hello.hello.queue_epoch if self.hello else 0
         q = np.asarray(self.config.goal, dtype=float)
         observation = Observation(
             observation_id="unsolicited", t_event=0, queue_epoch=epoch, task_phase="FREE_SPACE",
             q=array_payload(q))
         now = self.server.now_ns()
-        return encode_chunk_frame(self._chunk(observation, q, now, now, ChunkFaults()))
+        return self._chunk(observation, q, now, now, ChunkFaults())
 
     # -- sending ---------------------------------------------------------------------------
 

@@ -150,7 +150,7 @@ def test_a_dead_policy_link_task_is_a_lost_link_for_the_core(tmp_path: Path) -> 
         failures: list[str] = []
         task_failed(context, failures, "policy-link", ConnectionResetError("peer vanished"))
         state = context.cell.core.state
-        assert failures == ["policy-link: ConnectionResetError"]
+        assert failures == ["policy-link: ConnectionResetError: peer vanished"]
         assert state.session is None and str(state.fallback.mode) == "DEGRADED"
     finally:
         context.cell.world.close()

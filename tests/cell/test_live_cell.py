@@ -6,14 +6,18 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import socket
 import threading
 from pathlib import Path
 
 import pytest
 
+from kernel.app import standins
 from kernel.app.live import run_live
+from kernel.app.session import RunContext
 from kernel.shell.loop import run
+from skills.contact import ContactState
 from tests.cell.harness import manifest, replays_identically, run_dir
 
 pytestmark = pytest.mark.slow
@@ -69,3 +73,57 @@ def test_live_cycle_over_the_websocket_replays_exactly(
     assert any("READY=1" in m for m in messages)
     assert sum("WATCHDOG=1" in m for m in messages) >= 2
     assert "STOPPING=1" in messages[-1], messages[-3:]
+
+
+class _SignalInContact:
+    """Sends ``signum`` to the reference server once the contact owner is descending; records
+    the instant (run time, ns)."""
+
+    def __init__(self, servers: list, signum: int) -> None:
+        self.servers, self.signum = servers, signum
+        self.sent_ns: int | None = None
+
+    def __call__(self, context: RunContext) -> bool:
+        cell = context.cell
+        if self.sent_ns is None and cell.core.status().contact is ContactState.DESCENDING:
+            os.kill(self.servers[0].process.pid, self.signum)
+            self.sent_ns = cell.gateway.now_ns()
+        return False
+
+
+@pytest.mark.parametrize("signum", [signal.SIGSTOP, signal.SIGKILL], ids=["hung", "killed"])
+def test_a_policy_server_lost_in_contact_ends_contact_and_the_cycle(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, signum: int
+) -> None:
+    servers: list = []
+    load = standins.load
+
+    def recording(group: str, name: str):  # type: ignore[no-untyped-def]
+        make = load(group, name)
+        if group != standins.POLICIES:
+            return make
+        return lambda context: servers.append(make(context)) or servers[-1]
+
+    monkeypatch.setattr(standins, "load", recording)
+    loaded = manifest("sim-ur5e.toml", cycles=1)
+    hook = _SignalInContact(servers, signum)
+    summary = run(run_live(loaded, tmp_path / "runs", hook=hook))
+    assert hook.sent_ns is not None, "the contact phase was never reached"
+    lost_ms = hook.sent_ns * 1e-6
+    after = [t for t in summary["fallback_transitions"] if t["t"] >= lost_ms]
+    # DEGRADED within the heartbeat timeout of the server's last frame (docs/protocol.md)
+    bound_ms = loaded.policy.heartbeat_timeout_ms + loaded.policy.heartbeat_interval_ms + 100
+    assert after[0]["to"] == "DEGRADED" and after[0]["trigger"] == "LINK_LOST"
+    assert after[0]["t"] - lost_ms <= bound_ms
+    assert all(t["to"] in ("DEGRADED", "RUNNING") for t in after), "never an operator's hold"
+    lines = [json.loads(line) for line in (run_dir(tmp_path / "runs") / "decisions.jsonl").open()]
+    contact_ticks = [line for line in lines if line["kind"] == "tick" and line["t"] >= lost_ms
+                     and line["phase"] == "CONTACT"]
+    degraded = [line for line in contact_ticks if line["mode"] == "DEGRADED"]
+    assert degraded and all(line["command"] == "retreat" and line["owner"] == "contact"
+                            for line in degraded)  # the card's link_loss: retract
+    (cycle,) = summary["cycles"]["detail"]
+    assert not cycle["verified"] and cycle["reason"] == "policy link lost in contact"
+    assert not summary["timed_out"]
+    assert summary["link"]["server_restarts"] >= 1
+    assert replays_identically(run_dir(tmp_path / "runs"))

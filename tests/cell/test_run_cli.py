@@ -37,6 +37,14 @@ def _run(tmp_path: Path, text: str, capsys: pytest.CaptureFixture[str]) -> tuple
     (("[policy]", '[emulator]\nplant = "clay"\n\n[policy]'), "emulator.plant: unknown value"),
     (("[policy]", "[emulator]\nlaunch = 0\n\n[policy]"), "emulator.launch: expected bool"),
     (("[policy]", "[emulator]\nplnat = 1\n\n[policy]"), "emulator.plnat: unknown key"),
+    (("max_underrun_ms = 500", "max_underrun_ms = 400"),
+     "phases.PRE_CONTACT.max_underrun_ms: 400 ms must be longer than"),
+    (("max_underrun_ms = 500", "#"), "phases.PRE_CONTACT.max_underrun_ms: 250 ms (max_action"),
+    (("[policy]", "[policy]\nheartbeat_timeout_ms = 600"), "must be longer than policy.heart"),
+    (("[policy]", "[policy]\nmax_chunks_per_s = 0"), "policy: max_chunks_per_s must be positive"),
+    (("[policy]", "[policy]\nmax_frame_bytes = 2000000"), "policy: max_frame_bytes must be in"),
+    (("[policy]", "[policy]\nheartbeat_timeout_ms = 50"),
+     "heartbeat_timeout_ms (50.0) must be longer than heartbeat_interval_ms"),
 ])
 def test_bad_manifest_exits_2_naming_the_key(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], change: tuple[str, str], needle: str

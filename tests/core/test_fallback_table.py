@@ -71,6 +71,7 @@ NOT_TRIGGERS: frozenset[R] = frozenset({
     R.RECOVERY_ACCEPTED, R.OPERATOR_RELEASE, R.OPERATOR_RESET,  # outcomes of operator requests
     R.GUARD_FAILED, R.GUARD_PASSED, R.HANDSHAKE_ACCEPTED,  # task FSM and handshake outcomes
     R.PHASE_OWNER,  # a tick's reason, not an event
+    R.OBSERVATION_ANSWERED,  # an unsolicited answer: refused before any gate, says nothing
 })
 
 RECOVERABLE = frozenset({Mode.SAFE_HOLD, Mode.REPLAN_OR_RETREAT, Mode.CONTACT_FALLBACK,

@@ -100,3 +100,22 @@ def test_observation_log_clear_forgets_the_session() -> None:
     log.record("o1", 100)
     log.clear()
     assert log.time_of("o1") is None and log.latest is None
+
+
+def test_an_observation_is_pending_until_an_admitted_chunk_answers_it() -> None:
+    log = ObservationLog(capacity=2)
+    log.answer("never-sent")  # nothing to answer: stays unknown, not answered
+    assert not log.answered("never-sent")
+    log.record("o1", 1)
+    assert not log.answered("o1")
+    log.answer("o1")
+    assert log.answered("o1") and log.time_of("o1") == 1
+    log.record("o2", 2)
+    log.record("o3", 3)  # o1 is forgotten: an answer to it is an unknown observation again
+    assert not log.answered("o1") and log.time_of("o1") is None
+    log.answer("o3")
+    log.forget_answers()  # a new epoch purged the answer: o3 is pending again, still known
+    assert not log.answered("o3") and log.time_of("o3") == 3
+    log.answer("o3")
+    log.clear()  # a new session: nothing of the old one is pending or answered
+    assert not log.answered("o3") and log.time_of("o3") is None

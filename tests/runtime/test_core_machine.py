@@ -150,7 +150,11 @@ class CoreMachine(SentCommandChecks, RuleBasedStateMachine):
         return (self.run[-1][2] if self.run else self.core.state.measured_q)[:6]
 
     def _fresh_observation(self) -> tuple[str, int]:
-        if not self.observations or self.t_ms - self.observations[-1][1] > 30:
+        """The latest observation, or a new one if it is old or already answered (a sound
+        server answers each observation once: a second answer is OBSERVATION_ANSWERED)."""
+        answered = {self.fields_of[c]["observation_id"] for c in self.accepted}
+        if not self.observations or self.t_ms - self.observations[-1][1] > 30 or (
+                self.observations[-1][0] in answered):
             self.observe()
         return self.observations[-1]
 

@@ -3,16 +3,23 @@
 from __future__ import annotations
 
 import asyncio
+import io
+import json
 from collections.abc import Callable
 
 import pytest
+import structlog
 
+from kernel.shell.logging import configure_logging
 from kernel.shell.supervisor import (
+    MAX_MESSAGE,
     ChildState,
     RestartPolicy,
     Started,
     StartError,
     Supervisor,
+    describe,
+    failure_fields,
 )
 
 FAST = RestartPolicy(max_restarts=3, initial_backoff_s=0.0005, max_backoff_s=0.002)
@@ -235,3 +242,46 @@ async def test_an_error_in_the_body_stops_children_in_reverse_order() -> None:
 def test_backoff_is_capped() -> None:
     policy = RestartPolicy(max_restarts=10, initial_backoff_s=0.1, max_backoff_s=0.5)
     assert [policy.backoff_s(n) for n in range(5)] == [0.1, 0.2, 0.4, 0.5, 0.5]
+
+
+def test_a_failure_is_described_with_its_message_and_every_sub_exception() -> None:
+    try:
+        raise ExceptionGroup("unhandled errors in a TaskGroup", [
+            OverflowError("int too big to convert"),
+            ExceptionGroup("inner", [ValueError("x" * 500), KeyError("k")]),
+        ])
+    except ExceptionGroup as group:
+        text = describe(group)
+        fields = failure_fields(group)
+    assert text.startswith("ExceptionGroup of 3: OverflowError: int too big to convert; ")
+    assert "KeyError: 'k'" in text and len(text) < 600  # each message bounded
+    assert fields["error"] == "ExceptionGroup"
+    assert fields["sub_errors"] == ["OverflowError: int too big to convert",
+                                    f"ValueError: {'x' * MAX_MESSAGE}...", "KeyError: 'k'"]
+    assert describe(Boom("attempt 1")) == "Boom: attempt 1"
+    assert describe(Boom()) == "Boom"
+
+
+async def test_a_failed_child_is_logged_with_what_failed_not_only_its_type() -> None:
+    stream = io.StringIO()
+    configure_logging("INFO", stream)
+    try:
+        async def crashes(started: Started) -> None:
+            started()
+            async with asyncio.TaskGroup() as tasks:
+                tasks.create_task(_raise(OverflowError("offset out of range")))
+
+        async with Supervisor() as sup:
+            await sup.start("link", crashes, critical=False)
+            await asyncio.sleep(0.01)
+            await sup.shutdown()
+    finally:
+        structlog.reset_defaults()
+    (line,) = [json.loads(text) for text in stream.getvalue().splitlines()]
+    assert (line["event"], line["child"], line["error"]) == ("child_failed", "link",
+                                                             "ExceptionGroup")
+    assert line["sub_errors"] == ["OverflowError: offset out of range"]
+
+
+async def _raise(error: Exception) -> None:
+    raise error

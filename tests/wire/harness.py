@@ -26,8 +26,10 @@ from kernel.core.lines import ChunkLine, HandshakeLine, Line, TickLine
 from kernel.core.runtime import Core
 from kernel.scenario.config import build_config
 from kernel.scenario.fields import Where
-from kernel.shell.client import ADMITTED, RobotClient
+from kernel.shell.client import RobotClient
+from kernel.shell.link_budget import AdmissionPacer
 from kernel.shell.link_types import ClientConfig, RobotSample
+from kernel.summary import ADMITTED
 from stubs.policy_server import LatencyModel, PolicyServer, ServerConfig
 from tools.scenarios.base import ScenarioSpec
 
@@ -81,9 +83,12 @@ class LoopbackGateway:
             self.q = np.array(motion.q, dtype=float)
         self.feed(StateEvent(t=self.now_ns(), q=tuple(self.q)))
 
-    async def run_ticks(self, stop: asyncio.Event, period_s: float = 0.004) -> None:
+    async def run_ticks(self, stop: asyncio.Event, period_s: float = 0.004,
+                        pacer: AdmissionPacer | None = None) -> None:
         while not stop.is_set():
             self.tick()
+            if pacer is not None:  # as the live control loop does after writing its command
+                pacer.period_done(time.monotonic_ns() + round(period_s * 1e9))
             await asyncio.sleep(period_s)
 
     # -- what happened -------------------------------------------------------------------------
@@ -133,18 +138,20 @@ def client_config(port: int, **changes: Any) -> ClientConfig:
 @contextlib.asynccontextmanager
 async def running(
     server: ServerConfig | None = None, gateway: LoopbackGateway | None = None,
-    port: int | None = None, **client_changes: Any,
+    port: int | None = None, pacer: AdmissionPacer | None = None, **client_changes: Any,
 ) -> AsyncIterator[Link]:
-    """A server (in-process unless ``port`` names one elsewhere), a client and a tick loop."""
+    """A server (in-process unless ``port`` names one elsewhere), a client and a tick loop
+    (which hands out admission slots when a ``pacer`` is given, as the live loop does)."""
     gateway = gateway or LoopbackGateway()
     async with contextlib.AsyncExitStack() as stack:
         policy = await stack.enter_async_context(PolicyServer(server or server_config()))
-        client = RobotClient(client_config(port or policy.port, **client_changes), gateway)
+        client = RobotClient(client_config(port or policy.port, **client_changes), gateway,
+                             pacer=pacer)
         gateway.client = client
         stop = asyncio.Event()
         async with asyncio.TaskGroup() as tasks:
             tasks.create_task(client.run())
-            tasks.create_task(gateway.run_ticks(stop))
+            tasks.create_task(gateway.run_ticks(stop, pacer=pacer))
             global _LAST
             _LAST = Link(gateway, client, policy)
             try:

@@ -1,7 +1,8 @@
 """Hypothesis strategies for the reference server's messages and chunk envelopes.
 
 They build the server's own structs (``stubs/policy_server``) over the whole range the protocol
-document allows: 64-bit integers, any text, any float, arrays of any float64 values (NaN too:
+document allows: 64-bit integers (times, counts and offsets within their documented bounds), any
+text, any float, arrays of any float64 values (NaN too:
 array bytes compare exactly), every optional field absent or present.
 """
 
@@ -17,6 +18,8 @@ from stubs.policy_server import protocol as peer
 
 INT64 = st.integers(-(2**63), 2**63 - 1)
 TIME = st.integers(-(2**63 - 1), 2**63 - 1)
+COUNT = st.integers(0, 2**63 - 1)
+OFFSET = st.integers(-(2**62), 2**62)
 TEXT = st.text(max_size=12)
 NAME = st.text(min_size=1, max_size=12)
 FLOAT = st.floats(allow_nan=False)
@@ -59,14 +62,14 @@ DECISION = st.builds(
 MESSAGES = st.one_of(
     st.builds(peer.Hello, client_id=TEXT, protocol=PAIR, hello=CLIENT_HELLO),
     st.builds(peer.Offer, server_id=TEXT, offer=OFFER),
-    st.builds(peer.Decision, decision=DECISION, queue_epoch=INT64),
-    st.builds(peer.ClockPing, seq=INT64, t0=INT64),
-    st.builds(peer.ClockPong, seq=INT64, t0=INT64, t_server=INT64),
-    st.builds(peer.ClockReport, offset=INT64, round_trip=INT64),
-    st.builds(peer.Observation, observation_id=TEXT, t_event=INT64, queue_epoch=INT64,
+    st.builds(peer.Decision, decision=DECISION, queue_epoch=COUNT),
+    st.builds(peer.ClockPing, seq=COUNT, t0=TIME),
+    st.builds(peer.ClockPong, seq=COUNT, t0=TIME, t_server=TIME),
+    st.builds(peer.ClockReport, offset=OFFSET, round_trip=COUNT),
+    st.builds(peer.Observation, observation_id=TEXT, t_event=TIME, queue_epoch=COUNT,
               task_phase=TEXT, q=VECTOR, qd=_optional(VECTOR), wrench=_optional(VECTOR),
               gripper=_optional(FLOAT)),
-    st.builds(peer.Heartbeat, seq=INT64, t_send=INT64),
+    st.builds(peer.Heartbeat, seq=COUNT, t_send=TIME),
     st.builds(peer.Bye, reason=st.sampled_from(peer.ByeReason), detail=TEXT),
 )
 
@@ -74,7 +77,7 @@ STATE_FINGERPRINT = st.builds(
     peer_env.StateFingerprint, q=st.lists(FLOAT, max_size=7).map(tuple), hash=TEXT)
 
 CHUNKS = st.builds(
-    peer_env.ChunkEnvelope, chunk_id=NAME, sequence=INT64, queue_epoch=INT64,
+    peer_env.ChunkEnvelope, chunk_id=NAME, sequence=COUNT, queue_epoch=COUNT,
     policy_checkpoint=NAME, config_hash=NAME, skill_version=NAME, task_phase=NAME,
     controller_mode=NAME, calibration_epoch=INT64 | TEXT, observation_id=NAME,
     first_action_time=TIME, action_dt=st.integers(1, 2**63 - 1), actions=ACTIONS,

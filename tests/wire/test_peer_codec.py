@@ -80,8 +80,18 @@ def test_both_sides_write_the_documented_frame_bytes() -> None:
     (wire.encode_raw("observation", msgspec.msgpack.encode({
         "observation_id": "o", "t_event": 0, "queue_epoch": 0, "task_phase": "FREE_SPACE",
         "q": {"dtype": "<f8", "shape": [0], "data": b""}, "goal": [0.1]})), None),
+    (bytes.fromhex("92 a3 ff fe fd c0"), None),
+    (bytes.fromhex("92 a9") + b"heartbeat" + b"\x91" * 100_000, None),
+    (wire.encode_raw("bye", bytes.fromhex("81 a6") + b"reason" + bytes.fromhex("a2 ff fe")),
+     None),
+    (wire.encode_raw("clock_pong", msgspec.msgpack.encode(
+        {"seq": 1, "t0": 0, "t_server": 2**64 - 1})), None),
+    (wire.encode_raw("heartbeat", msgspec.msgpack.encode({"seq": -1, "t_send": 0})), None),
+    (wire.encode_raw("clock_report", msgspec.msgpack.encode(
+        {"offset": 2**62 + 1, "round_trip": 0})), 2),
 ], ids=["not_msgpack", "text", "not_a_frame", "unknown_type", "too_new", "missing_field",
-        "unknown_observation_field"])
+        "unknown_observation_field", "invalid_utf8_type", "nested_too_deep",
+        "invalid_utf8_body", "time_beyond_int64", "negative_sequence", "offset_too_large"])
 def test_both_sides_call_the_same_frames_violations(data: bytes | str, version: int | None,
                                                     ) -> None:
     with pytest.raises(wire.ProtocolViolation):
@@ -122,6 +132,23 @@ def test_warden_chunks_decode_in_the_server_to_the_same_values(
     decoded, decoded_actions = peer_env.decode_chunk_body(frame.body)
     assert decoded == sent
     np.testing.assert_array_equal(decoded_actions, narrowed.astype(np.float64))
+
+
+@pytest.mark.parametrize(("field", "value"), [
+    ("sequence", -1), ("sequence", 2**63), ("queue_epoch", -1), ("queue_epoch", 2**64 - 1)])
+def test_counts_outside_their_range_are_malformed_on_both_sides(field: str, value: int) -> None:
+    actions = peer.array_payload(np.ones((2, 6)))
+    chunk = peer_env.ChunkEnvelope(
+        chunk_id="c", sequence=1, queue_epoch=0, policy_checkpoint="p", config_hash="h",
+        skill_version="1", task_phase="FREE_SPACE", controller_mode="joint_position",
+        calibration_epoch="cal", observation_id="o", first_action_time=0, action_dt=1,
+        actions=actions)
+    body = msgspec.msgpack.encode({**msgspec.to_builtins(chunk, builtin_types=(bytes,)),
+                                   field: value})
+    decoded = decode_wire_chunk(body, 0)
+    assert not isinstance(decoded, Chunk) and field in decoded.detail
+    with pytest.raises(msgspec.ValidationError):
+        msgspec.msgpack.decode(body, type=peer_env.ChunkEnvelope)
 
 
 def test_a_nonfinite_action_reaches_warden_as_nonfinite_not_malformed() -> None:

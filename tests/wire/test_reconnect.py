@@ -3,10 +3,18 @@ resent by the server refused for their epoch."""
 
 from __future__ import annotations
 
+import asyncio
+import dataclasses
+import os
+import signal
+
 from assurance.reasons import ReasonCode as R
-from kernel.core.events import HandshakeEvent, LinkEvent
+from kernel.core.events import ChunkEvent, HandshakeEvent, LinkEvent
+from kernel.core.lines import TransitionLine
+from kernel.shell.client import RobotClient
 from stubs.policy_server import FaultConfig
-from tests.wire.harness import running, server_config, wait_for
+from stubs.process import EmulatorProcess
+from tests.wire.harness import LoopbackGateway, client_config, running, server_config, wait_for
 
 
 async def test_server_disconnect_reconnects_with_a_new_epoch() -> None:
@@ -58,3 +66,75 @@ async def test_server_gone_then_back_the_client_keeps_trying() -> None:
     downs = link.gateway.link_events("down")
     assert len(downs) >= 3
     assert link.client.counters.reconnects >= 3
+
+
+async def test_a_silent_server_is_a_lost_link_within_the_heartbeat_timeout() -> None:
+    # docs/protocol.md: the core learns of a silent peer heartbeat_timeout_s after its last
+    # frame (plus the loop's latency), before any goodbye or close handshake with it.
+    timeout_s = 0.15
+    async with running(server_config(faults=FaultConfig(stall_after=2)),
+                       heartbeat_timeout_s=timeout_s) as link:
+        await wait_for(lambda: link.gateway.link_events("down"), "the link declared lost")
+        events = list(link.gateway.events)
+        transitions = [line for line in link.gateway.lines
+                       if isinstance(line, TransitionLine) and line.machine == "fallback"]
+    down = next(i for i, e in enumerate(events) if isinstance(e, LinkEvent) and e.status == "down")
+    last_chunk = next(e for e in reversed(events[:down]) if isinstance(e, ChunkEvent))
+    silent_s = (events[down].t - last_chunk.t) * 1e-9
+    assert timeout_s - 0.01 <= silent_s <= timeout_s + 0.1
+    assert link.client.counters.link_timeouts == 1
+    # so the starved queue never escalated first: DEGRADED, which a new handshake recovers
+    assert (transitions[0].to, transitions[0].trigger) == ("DEGRADED", R.LINK_LOST)
+
+
+class _LaunchedServer:
+    """A reference server in a subprocess that this test 'launched': the client may restart it
+    (as kernel/app/live.py restarts the one a run launched)."""
+
+    ARGS = ("--host", "127.0.0.1", "--port", "0", "--latency-median-ms", "2",
+            "--latency-p95-ms", "4", "--heartbeat-interval", "0.05", "--max-speed", "0.1")
+
+    def __init__(self) -> None:
+        self.process: EmulatorProcess | None = None
+        self.pids: list[int] = []
+
+    def start(self) -> str:
+        self.process = EmulatorProcess("stubs.policy_server", *self.ARGS).start()
+        self.pids.append(self.process.pid)
+        return f"ws://127.0.0.1:{self.process.info['port']}"
+
+    def stop(self) -> None:
+        if self.process is not None:
+            self.process.stop()
+
+    async def restart(self) -> str:
+        await asyncio.to_thread(self.stop)
+        return await asyncio.to_thread(self.start)
+
+
+async def test_a_launched_server_that_hangs_is_restarted_and_the_session_resumes() -> None:
+    server = _LaunchedServer()
+    url = await asyncio.to_thread(server.start)
+    gateway = LoopbackGateway()
+    client = RobotClient(dataclasses.replace(client_config(0), url=url,
+                                             heartbeat_timeout_s=0.15), gateway, server=server)
+    gateway.client = client
+    stop = asyncio.Event()
+    try:
+        async with asyncio.TaskGroup() as tasks:
+            tasks.create_task(client.run())
+            tasks.create_task(gateway.run_ticks(stop))
+            try:
+                await wait_for(lambda: len(gateway.admitted()) >= 3, "a working session")
+                os.kill(server.pids[0], signal.SIGSTOP)  # hung, not dead: only silence tells
+                await wait_for(lambda: client.counters.server_restarts >= 1, "a restart", 20.0)
+                await wait_for(lambda: client.counters.handshakes_accepted >= 2, "a new session")
+                admitted = len(gateway.admitted())
+                await wait_for(lambda: len(gateway.admitted()) > admitted, "chunks again")
+            finally:
+                stop.set()
+                client.stop()
+    finally:
+        await asyncio.to_thread(server.stop)
+    assert len(server.pids) == 2 and client.counters.link_timeouts >= 1
+    assert len(gateway.link_events("down")) >= 1

@@ -128,6 +128,29 @@ def duplicate_ignored() -> ScenarioSpec:
     )
 
 
+def observation_answered() -> ScenarioSpec:
+    return ScenarioSpec(
+        name="observation_answered",
+        description="A second chunk (a new id) citing an observation that an admitted chunk "
+                    "already answered answers nothing pending: refused OBSERVATION_ANSWERED "
+                    "before any gate, with no fallback; the queue runs on the first answer, and "
+                    "the answer to the next observation is admitted as usual.",
+        events=[*_start(), chunk(20, "C1", 1, "O1", 0, first=20, actions=ramp(1, 8)),
+                st(30, q_at(1)), chunk(30, "C2", 2, "O1", 0, first=40, actions=ramp(3, 8)),
+                observation(40, "O2"), st(40, q_at(2)), st(50, q_at(3)),
+                chunk(60, "C3", 3, "O2", 0, first=70, actions=ramp(6, 8))],
+        until=80,
+        expect=[
+            {"kind": "chunk", "chunk_id": "C1", "t": 20, "decision": "accepted"},
+            {"kind": "chunk", "chunk_id": "C2", "t": 30, "decision": "rejected",
+             "reasons": ["OBSERVATION_ANSWERED"]},
+            {"kind": "tick", "t": 40, "sent.chunk_id": "C1"},
+            {"kind": "chunk", "chunk_id": "C3", "t": 60, "decision": "replaced"},
+        ],
+        forbid=[{"kind": "transition"}, {"kind": "tick", "sent.chunk_id": "C2"}],
+    )
+
+
 def id_conflict() -> ScenarioSpec:
     other = ramp(1, 8)
     other[4][0] += 0.001
@@ -204,6 +227,6 @@ def unknown_observation() -> ScenarioSpec:
 
 
 SCENARIOS = [accepted_and_executed, malformed_chunk, nonfinite_chunk, schema_mismatch,
-             duplicate_ignored, id_conflict, reordered_sequence, queue_epochs,
+             duplicate_ignored, observation_answered, id_conflict, reordered_sequence, queue_epochs,
              unknown_observation]
 _ = DELTA
