@@ -76,7 +76,7 @@ def main(argv: list[str] | None = None) -> int:
     gc.freeze()  # object dictionaries and the plant live forever: keep full GC passes short
     handlers = {name: _handler(emulator, name) for name in emulator.faults}
     handlers.update(world_handlers(emulator.plant, emulator.lock))
-    handlers["drives"] = lambda _: emulator.report()
+    handlers["drives"] = lambda _: {"drives": emulator.report()}
     faults = FaultControlServer("127.0.0.1", args.fault_port, handlers).start()
     stop = threading.Event()
     for signum in (signal.SIGTERM, signal.SIGINT):

@@ -210,8 +210,10 @@ class EmulatedDrive:
                 self.node.emcy.reset()
 
     def supervise(self, now: float) -> None:
-        """The drive's own periodic check (the emulator's clock, under its lock)."""
-        if self.consumer.expired(now):
+        """The drive's heartbeat event, if its consumer is overdue (the emulator's clock calls
+        this under its lock, once no received frame waits to be handled)."""
+        if self.consumer.overdue(now):
+            self.consumer.expire()
             self.connection_lost(ConnectionLoss.HEARTBEAT)
 
     def connection_lost(self, loss: ConnectionLoss) -> None:

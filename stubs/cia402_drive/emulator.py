@@ -10,7 +10,10 @@ EMCY, fault injection by node id); only its link to the plant differs (``gripper
 The drives also keep their own time, as a drive's firmware does whatever the bus does: a clock
 thread checks every drive's heartbeat consumer each millisecond, and once SYNC is late it steps
 the plant itself with the drives' last targets (a motor does not freeze when its master stops
-talking; without this, a dead master would freeze the emulated arm mid-motion).
+talking; without this, a dead master would freeze the emulated arm mid-motion). A consumer is
+judged only while no received frame waits in the bus's socket: a real drive's CAN controller
+takes a frame in as it arrives, this process may be behind (a busy core) with the heartbeat
+among the frames it has not read yet.
 Frames are handled on canopen's notifier thread; one lock orders them, the clock and fault
 injection. In-process on ``virtual``; across processes on ``udp_multicast`` (``__main__``).
 """
@@ -19,6 +22,7 @@ from __future__ import annotations
 
 import logging
 import os
+import select
 import socket
 import threading
 import time
@@ -113,6 +117,7 @@ class DriveEmulator:
         self._network: canopen.Network | None = None
         self._clock = _SyncClock()
         self._stopping = threading.Event()
+        self._fd = -1
         self._clock_thread = threading.Thread(target=self._keep_time, name="drive-clock",
                                               daemon=True)
         self.faults: dict[str, Callable[..., None]] = {
@@ -138,6 +143,7 @@ class DriveEmulator:
             for cob_id in HEARTBEAT_COB_IDS:
                 network.subscribe(cob_id, self._on_heartbeat)
             self._network = network.connect()
+            self._fd = _fileno(bus)
         except BaseException:
             bus.shutdown()
             raise
@@ -207,12 +213,22 @@ class DriveEmulator:
         while not self._stopping.wait(CLOCK_TICK_S):
             with self.lock:
                 now = time.monotonic()
-                for drive in self.drives.values():
-                    drive.supervise(now)
+                overdue = [d for d in self.drives.values() if d.consumer.overdue(now)]
+                if overdue and not self._frames_waiting():
+                    for drive in overdue:
+                        drive.supervise(now)
                 last_sync = self._clock.last_sync
                 if last_sync is None or now - last_sync > LATE_SYNC_PERIODS * (
                         self._cycle_ns() * 1e-9):
                     self._move_plant()
+
+    def _frames_waiting(self) -> bool:
+        """Received frames not read yet (a bus without a file descriptor, ``virtual``, is
+        read by a thread of this process that keeps up: never)."""
+        if self._fd < 0:
+            return False
+        readable, _, _ = select.select([self._fd], [], [], 0)
+        return bool(readable)
 
     def _on_sync(self, can_id: int, data: bytearray, timestamp: float) -> None:
         with self.lock:
@@ -315,6 +331,13 @@ def encoders_for(node_ids: Sequence[int], counts_per_rev: int,
 
 
 
+def _fileno(bus: can.BusABC) -> int:
+    try:
+        return bus.fileno()
+    except NotImplementedError:
+        return -1
+
+
 def widen_receive_buffer(bus: can.BusABC, size: int = UDP_RECEIVE_BUFFER) -> None:
     """Let a UDP-backed bus ride through a stall of this process without dropping frames.
 
@@ -324,10 +347,7 @@ def widen_receive_buffer(bus: can.BusABC, size: int = UDP_RECEIVE_BUFFER) -> Non
     and RPDOs. Works on a duplicate of the bus's public ``fileno()``: same socket, no private
     attributes. Buses without a file descriptor (``virtual``) are left as they are.
     """
-    try:
-        fd = bus.fileno()
-    except NotImplementedError:
-        return
+    fd = _fileno(bus)
     if fd < 0:
         return
     with socket.socket(fileno=os.dup(fd)) as sock:

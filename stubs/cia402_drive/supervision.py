@@ -67,11 +67,12 @@ class HeartbeatConsumer:
         if self.watching and producer == self.producer:
             self.last_heard = now
 
-    def expired(self, now: float) -> bool:
-        """True once per silence longer than the consumer time."""
-        if not self.watching or self.last_heard is None:
-            return False
-        if now - self.last_heard <= self.timeout_s:
-            return False
+    def overdue(self, now: float) -> bool:
+        """The producer has been silent longer than the consumer time (and was heard before)."""
+        return (self.watching and self.last_heard is not None
+                and now - self.last_heard > self.timeout_s)
+
+    def expire(self) -> None:
+        """The heartbeat event happened: monitoring waits for the producer's next heartbeat,
+        so that one silence is one event."""
         self.last_heard = None
-        return True
