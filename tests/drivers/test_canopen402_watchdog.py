@@ -7,7 +7,7 @@ write then sends warden's heartbeat (at most every ``master_heartbeat_ms``); dea
 it. When the writes stop, each drive misses the heartbeat: EMCY 0x8130, NMT PRE-OPERATIONAL,
 the joints in QUICK STOP ACTIVE (0x605A = 6: powered, holding), the gripper still squeezing.
 These tests use a 1 s watchdog (cia402_testbed: on the shared 2-core test machine a test
-process was once silent for 0.47 s). The last tests run the default (100 ms, heartbeat every
+process was once silent for 0.47 s). The last tests run the default (300 ms, heartbeat every
 10 ms) at manifests/sim-canopen.toml's 8 ms period: they kill a driver process outright
 (SIGKILL) while it streams toward a far target; this file run as a script is that child.
 
@@ -215,7 +215,7 @@ def test_the_watchdog_settings_are_checked_with_the_key() -> None:
 
 
 def _drives_report(address: tuple[str, int]) -> dict[str, Any]:
-    return inject(address, "drives")
+    return inject(address, "drives")["drives"]
 
 
 def _until_all_reacted(address: tuple[str, int], since: float,
@@ -254,7 +254,7 @@ def test_a_killed_driver_leaves_the_arm_at_rest_within_the_bound(plant: str) -> 
     print(f"\n{plant}: at rest {seconds * 1e3:.0f} ms, every joint drive quick-stopped "
           f"{reacted * 1e3:.0f} ms after SIGKILL (bound {bound * 1e3:.0f} ms), joint 0 moved "
           f"{rest['q'][0] - start['q'][0]:.3f} rad")
-    assert DEFAULT_WATCHDOG_MS == 100  # docs/operations.md states the bound for this default
+    assert DEFAULT_WATCHDOG_MS == 300  # docs/operations.md states the bound for this default
     assert {n: armed[str(n)]["consumer"]["timeout_ms"] for n in (*JOINTS, GRIPPER)} == every(
         DEFAULT_WATCHDOG_MS)
     assert seconds < bound and reacted < bound
