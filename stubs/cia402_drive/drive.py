@@ -26,6 +26,7 @@ from stubs.cia402_drive.encoders import Encoder, LinearEncoder
 from stubs.cia402_drive.pdo import TpdoPacker, unsubscribe
 from stubs.cia402_drive.profile import (
     ABORT_VALUE_RANGE,
+    EMCY_COMMUNICATION,
     EMCY_FOLLOWING_ERROR,
     EMCY_HEARTBEAT,
     ERROR_REGISTER_COMMUNICATION,
@@ -54,10 +55,10 @@ CACHED_PARAMETERS = {
 """Objects the SYNC path reads every cycle, kept as attributes when the master writes them."""
 LOSS_ERROR_CODES = {
     ConnectionLoss.HEARTBEAT: EMCY_HEARTBEAT,
-    ConnectionLoss.NMT_STOPPED: 0x8100,
-    ConnectionLoss.NMT_RESET: 0x8100,
+    ConnectionLoss.NMT_STOPPED: EMCY_COMMUNICATION,
+    ConnectionLoss.NMT_RESET: EMCY_COMMUNICATION,
 }
-"""Error code of a fault signalled on a lost connection (0x8100: communication, generic)."""
+"""Error code of a fault signalled on a lost connection (0x6007 = fault signal)."""
 
 
 NMT_LOSSES = {"STOPPED": ConnectionLoss.NMT_STOPPED, "INITIALISING": ConnectionLoss.NMT_RESET}

@@ -179,7 +179,8 @@ class DriveEmulator:
         if network is None:
             return
         self._stopping.set()
-        self._clock_thread.join(timeout=1.0)
+        if self._clock_thread.is_alive():
+            self._clock_thread.join(timeout=1.0)
         for drive in self.drives.values():
             drive.node.nmt.stop_heartbeat()
         network.disconnect()

@@ -168,4 +168,6 @@ ABORT_VALUE_RANGE = 0x0609_0030
 EMCY_FOLLOWING_ERROR = 0x8611
 EMCY_HEARTBEAT = 0x8130
 """Life guard error or heartbeat error (CiA 301, table 21)."""
+EMCY_COMMUNICATION = 0x8100
+"""Communication, generic (CiA 301, table 21)."""
 EMCY_OVER_CURRENT = 0x2310
