@@ -1,4 +1,12 @@
-"""CANopen CiA 402 servo drives (canopen + python-can), cyclic synchronous position mode."""
+"""CANopen CiA 402 servo drives (canopen + python-can), cyclic synchronous position mode.
+
+``driver`` has the lifecycle hooks; ``bringup`` the blocking bring-up steps; ``cycle`` the bus
+cycle (RPDOs + SYNC); ``drive_state`` the 402 state walks; ``health`` what the drives report
+between calls (heartbeats, EMCY, TPDOs); ``watchdog`` the drives' watchdog on warden (warden's
+heartbeat, each drive's consumer of it and its reaction to a lost connection); ``gripper`` the
+gripper drive; ``link`` the only code that builds canopen objects; ``tables``, ``units`` and
+``settings`` CiA 301/402 as data, unit conversions and the manifest table.
+"""
 
 from drivers.canopen402.driver import CiA402Driver
 from drivers.canopen402.settings import CiA402Settings

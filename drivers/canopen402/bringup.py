@@ -151,14 +151,17 @@ def frame_bits(data_bytes: int) -> int:
     return 47 + 8 * data_bytes + (34 + 8 * data_bytes - 1) // 4
 
 
-def bus_load(drives: int, period_s: float, bitrate: int) -> float:
-    """Fraction of the bitrate one bus cycle of this layout takes, worst case.
+def bus_load(drives: int, period_s: float, bitrate: int,
+             heartbeat_interval_s: float | None = None) -> float:
+    """Fraction of the bitrate the bus cycle of this layout takes, worst case.
 
-    Per drive: the RPDO and every TPDO; per cycle: one SYNC.
+    Per drive: the RPDO and every TPDO; per cycle: one SYNC; and warden's heartbeat (one data
+    byte) every ``heartbeat_interval_s`` while the drives watch it.
     """
     sizes = [_layout_bytes(layout) for layout in (*RPDO_LAYOUT, *TPDO_LAYOUT)]
     bits = drives * sum(frame_bits(size) for size in sizes) + frame_bits(0)
-    return bits / period_s / bitrate
+    heartbeat = frame_bits(1) / heartbeat_interval_s if heartbeat_interval_s else 0.0
+    return (bits / period_s + heartbeat) / bitrate
 
 
 def _layout_bytes(indices: tuple[Index, ...]) -> int:
@@ -177,7 +180,8 @@ def check_bus_load(settings: CiA402Settings, period_s: float) -> None:
     if settings.interface in EMULATED_INTERFACES:
         return
     drives = len(settings.drive_ids)  # the gripper's PDOs share the bus with the joints'
-    load = bus_load(drives, period_s, settings.bitrate)
+    heartbeat = settings.heartbeat_interval_s(period_s) if settings.watchdog_ms else None
+    load = bus_load(drives, period_s, settings.bitrate, heartbeat)
     if load > 1.0:
         raise DriverInitError(
             settings.name, f"{drives} drives at {1 / period_s:.0f} Hz need "

@@ -2,10 +2,12 @@
 and optionally one more such drive for the gripper (:mod:`drivers.canopen402.gripper`).
 
 connect: open the bus, NMT pre-operational, check every node answers and is a 402 drive, start
-its heartbeat, refuse (or, if allowed, reset) a drive in FAULT. configure: cycle time, limits,
-quick-stop option and PDO mapping over SDO, NMT operational, the bus cycle (RPDOs + SYNC) at the
-control period, CSP confirmed. activate: target := actual, then up to OPERATION ENABLED.
-write: targets into the RPDOs, then RPDOs + SYNC; read: the latest TPDOs, converted to SI units.
+its heartbeat, set its reaction to a lost connection, refuse (or, if allowed, reset) a drive in
+FAULT. configure: cycle time, limits, quick-stop option and PDO mapping over SDO, NMT
+operational, the bus cycle (RPDOs + SYNC) at the control period, CSP confirmed. activate:
+target := actual, then up to OPERATION ENABLED. write: targets into the RPDOs, then RPDOs +
+SYNC; the first setpoint arms every drive's watchdog on warden's heartbeat, which every write
+then feeds (:mod:`drivers.canopen402.watchdog`). read: the latest TPDOs, converted to SI units.
 Every step that concerns "every drive" includes the gripper drive, so its faults surface exactly
 as a joint's do; only the units and the HOLD/STOP rules differ.
 
@@ -38,7 +40,7 @@ from drivers.base import (
     NotConnected,
     StateSample,
 )
-from drivers.canopen402 import bringup, gripper
+from drivers.canopen402 import bringup, gripper, watchdog
 from drivers.canopen402._sdk import Node402, PdoVariable
 from drivers.canopen402.cycle import BusCycle
 from drivers.canopen402.drive_state import FAULTY, check_running, current_state, walk_to
@@ -48,6 +50,7 @@ from drivers.canopen402.link import Link, build_link
 from drivers.canopen402.settings import CiA402Settings
 from drivers.canopen402.tables import Command as Controlword
 from drivers.canopen402.tables import DriveState, Index
+from drivers.canopen402.watchdog import DriveWatchdog
 from drivers.device_thread import DeviceThread
 
 T = TypeVar("T")
@@ -75,6 +78,7 @@ class CiA402Driver:
         self._stop_requested = False
         self._closed = False
         self._seq = 0
+        self._watchdog = DriveWatchdog(settings)
 
     @classmethod
     def from_mapping(cls, table: Mapping[str, Any], where: str = "canopen402",
@@ -102,6 +106,7 @@ class CiA402Driver:
         self._thread = DeviceThread(self.name)
         try:
             self._link = await self._blocking("open the CAN bus", build_link, self.settings)
+            self._watchdog.attach(self._link.network)
             for node in self._link.nodes:
                 self._health.attach(node)
             self._link.start_notifier(asyncio.get_running_loop())
@@ -117,6 +122,7 @@ class CiA402Driver:
         for node in nodes:
             bringup.probe(node, self.settings)
         bringup.start_heartbeats(nodes, self.settings, self._health)
+        watchdog.prepare_all(nodes, self.settings)
         for node in nodes:
             bringup.clear_fault(node, self.settings, self._health)
 
@@ -126,6 +132,10 @@ class CiA402Driver:
             raise DriverInitError(self.name, f"the control loop has {control.dof} joints but "
                                   f"node_ids lists {len(joints)} drives")
         bringup.check_bus_load(self.settings, control.period_ns * 1e-9)
+        try:
+            self.settings.check_watchdog(control.period_ns * 1e-9)
+        except ValueError as error:
+            raise DriverInitError(self.name, str(error)) from error
         self._control = control
         self._rated_torque = await self._blocking("PDO and parameter setup",
                                                   self._configure_drives, control)
@@ -202,6 +212,11 @@ class CiA402Driver:
 
     async def write(self, command: Command) -> Applied:
         self._check()
+        if command.kind is CommandKind.POSITION and self._watchdog.to_arm:
+            await self._blocking("arm the drives' watchdog", self._for_each, watchdog.arm,
+                                 self._watchdog.entry)  # the first setpoint: see watchdog.py
+            self._watchdog.armed = True
+        self._watchdog.beat()
         if command.kind is CommandKind.POSITION:
             return self._write_position(command)
         if command.kind is CommandKind.HOLD:
@@ -212,6 +227,7 @@ class CiA402Driver:
 
     async def hold(self) -> Applied:
         self._check()
+        self._watchdog.beat()
         q = self._hold_targets()
         self._keep_gripper()
         if self._active and self._stop_requested:  # leave QUICK STOP ACTIVE (transition 16)
@@ -226,6 +242,9 @@ class CiA402Driver:
         self._active = False
         self._hold_targets()
         self._keep_gripper()
+        if self._watchdog.armed:  # beating meanwhile (_blocking): no drive stops on the way
+            await self._blocking("disarm the drives' watchdog", self._for_each, watchdog.disarm)
+            self._watchdog.armed = False
         await self._blocking("disable", self._for_each, self._disable_unless_faulted)
         self._powered = self._stop_requested = False
         self._check()
@@ -346,7 +365,8 @@ class CiA402Driver:
         if self._thread is None:
             raise NotConnected(self.name, f"{label}: not connected")
         try:
-            return await self._thread.run(self.settings.call_timeout_s, fn, *args)
+            async with self._watchdog.kept_up():
+                return await self._thread.run(self.settings.call_timeout_s, fn, *args)
         except DriverError:
             raise
         except (SdoCommunicationError, SdoAbortedError) as error:

@@ -3,8 +3,9 @@
 canopen calls the ``_on_*`` callbacks from whichever thread dispatches frames (the event loop or
 the notifier's reader thread); the driver reads the result from the loop and the device thread.
 A lock keeps each node's record consistent. ``check`` turns the record into the error the
-lifecycle needs: an EMCY is a CONTROLLER_FAULT, a silent drive is LINK_LOST, a drive that is alive
-but stopped sending process data is a WATCHDOG.
+lifecycle needs: an EMCY is a CONTROLLER_FAULT (but a heartbeat error, the drive's watchdog on
+warden, is a WATCHDOG), a silent drive is LINK_LOST, a drive that is alive but stopped sending
+process data is a WATCHDOG.
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ from assurance.reasons import ReasonCode
 from drivers.base import DeviceFault, DriverIOError, DriverTimeout
 from drivers.canopen402._sdk import EmcyEntry, Node402
 from drivers.canopen402.settings import CiA402Settings
-from drivers.canopen402.tables import EMCY_NAMES, NmtState
+from drivers.canopen402.tables import EMCY_HEARTBEAT, EMCY_NAMES, NmtState
 
 
 @dataclass(frozen=True, slots=True)
@@ -118,6 +119,11 @@ class HealthMonitor:
         return self._settings.node_label(node_id)
 
     def _raise_emcy(self, node_id: int, emcy: EmcyRecord) -> None:
+        if emcy.code == EMCY_HEARTBEAT:
+            raise DeviceFault(
+                self._settings.name, f"{self._label(node_id)} reports {emcy.describe()}: its "
+                f"watchdog missed warden's heartbeat for {self._settings.watchdog_ms} ms and "
+                "reacted as its 0x6007 says", ReasonCode.WATCHDOG)
         raise DeviceFault(self._settings.name, f"{self._label(node_id)} reports {emcy.describe()}",
                           ReasonCode.CONTROLLER_FAULT)
 

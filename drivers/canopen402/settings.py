@@ -47,6 +47,18 @@ class CiA402Settings:
     """Written to each drive's 0x1017 (producer heartbeat time)."""
     heartbeat_timeout_ms: int = 250
     """Consumer side: a drive silent this long is LINK_LOST."""
+    master_node_id: int = 127
+    """warden's own node id on the bus: its heartbeat is COB-ID 0x700 + this. Not a drive's."""
+    master_heartbeat_ms: int = 10
+    """warden's heartbeat producer time: while the drives watch it, the control loop's writes
+    send it, at most this often (every ⌈time / period⌉ periods)."""
+    watchdog_ms: int = 300
+    """Each drive's consumer time for warden's heartbeat (0x1016): a drive that misses it this
+    long reacts as 0x6007 says (the joints quick-stop and hold, the gripper keeps its grip).
+    Armed by the first setpoint after activation, removed on deactivate; 0 switches it off.
+    300, not 100: on the shared test machine the control loop stalls 105-245 ms a few times a
+    run, and a CSP drive holds the last setpoint meanwhile. See docs/operations.md,
+    "Device-side watchdogs"."""
     tpdo_timeout_ms: int = 200
     """No TPDO from a drive for this long while the bus cycle runs: WATCHDOG."""
     sdo_timeout_s: float = 0.3
@@ -86,6 +98,39 @@ class CiA402Settings:
         if min(self.tpdo_timeout_ms, self.sdo_timeout_s, self.boot_timeout_s,
                self.state_timeout_s, self.call_timeout_s) <= 0:
             raise ValueError("timeouts must be positive")
+        self._check_watchdog()
+
+    def _check_watchdog(self) -> None:
+        if not 1 <= self.master_node_id <= 127 or self.master_node_id in self.drive_ids:
+            raise ValueError(f"master_node_id must be within 1..127 and not a drive's node id, "
+                             f"got {self.master_node_id}")
+        if not 0 < self.master_heartbeat_ms <= 0xFFFF:
+            raise ValueError(f"master_heartbeat_ms must be within 1..65535, got "
+                             f"{self.master_heartbeat_ms}")
+        if not 0 <= self.watchdog_ms <= 0xFFFF:
+            raise ValueError(f"watchdog_ms must be within 0..65535 (0x1016 keeps 16 bits of "
+                             f"milliseconds; 0: off), got {self.watchdog_ms}")
+
+    def heartbeat_interval_s(self, period_s: float) -> float:
+        """How far apart warden's heartbeats go out at this control period: the first write at
+        least ``master_heartbeat_ms`` after the previous one sends the next."""
+        periods = math.ceil(self.master_heartbeat_ms / 1000.0 / period_s - 1e-9)
+        return max(periods, 1) * period_s
+
+    def check_watchdog(self, period_s: float) -> None:
+        """At configure, once the control period is known.
+
+        Raises:
+            ValueError: ``watchdog_ms`` shorter than two heartbeat intervals, so that one
+                heartbeat lost on the bus would already stop the arm.
+        """
+        interval_s = self.heartbeat_interval_s(period_s)
+        if self.watchdog_ms and self.watchdog_ms / 1000.0 < 2 * interval_s:
+            raise ValueError(
+                f"watchdog_ms: {self.watchdog_ms} ms is shorter than two of warden's heartbeats "
+                f"({1000 * interval_s:g} ms apart at master_heartbeat_ms = "
+                f"{self.master_heartbeat_ms} and a {1000 * period_s:g} ms period): one lost "
+                "heartbeat would stop the arm; raise it or lower master_heartbeat_ms")
 
     def _check_gripper(self) -> None:
         if self.gripper_node is not None:

@@ -24,7 +24,10 @@ class Index(IntEnum):
     ERROR_REGISTER = 0x1001
     COMM_CYCLE_PERIOD = 0x1006
     """SYNC interval in microseconds; the drive interpolates (and the emulator steps) by it."""
+    HEARTBEAT_CONSUMER = 0x1016
+    """Consumer heartbeat time: per sub-index, producer node id << 16 | time in ms."""
     HEARTBEAT_TIME = 0x1017
+    ABORT_CONNECTION_OPTION = 0x6007
     ERROR_CODE = 0x603F
     CONTROLWORD = 0x6040
     STATUSWORD = 0x6041
@@ -127,6 +130,16 @@ QUICK_STOP_HOLD = 6
 """0x605A value: slow down on the quick-stop ramp, then *stay* in QUICK STOP ACTIVE (torque on)."""
 
 
+class AbortConnection(IntEnum):
+    """0x6007 values (CiA 402-2): what a drive does when its connection is lost (bus-off, a
+    heartbeat or life guarding event, NMT STOPPED, reset application or communication)."""
+
+    NO_ACTION = 0
+    FAULT_SIGNAL = 1
+    DISABLE_VOLTAGE = 2
+    QUICK_STOP = 3
+
+
 class NmtState(IntEnum):
     """NMT states as a heartbeat reports them (toggle bit masked)."""
 
@@ -135,6 +148,9 @@ class NmtState(IntEnum):
     OPERATIONAL = 5
     PRE_OPERATIONAL = 127
 
+
+EMCY_HEARTBEAT = 0x8130
+"""A drive's heartbeat consumer missed its producer (CiA 301): warden's, once armed."""
 
 # A few EMCY codes of CiA 402 (annex) that drives and the emulator raise; anything else is
 # named by its CiA 301 class (canopen.emcy.EmcyError.get_desc).

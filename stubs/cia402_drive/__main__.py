@@ -3,7 +3,9 @@
 Prints ``READY {json}`` (fault port, bus, nodes) once the drives have booted, then serves the
 bus until SIGTERM/SIGINT. Faults arrive on a loopback line-JSON port (stubs.fault_control):
 ``emcy`` (node, code), ``heartbeat_stop`` (node), ``quick_stop`` (node), ``ignore_mode`` (node),
-``clear``. With ``--gripper-node N`` one more drive (node N) moves the plant's gripper: its
+``clear``; the same port answers ``drives`` (each drive's 402 and NMT state, heartbeat consumer,
+abort connection option and the lost connections it reacted to) and the plant's
+``ground_truth``. With ``--gripper-node N`` one more drive (node N) moves the plant's gripper: its
 CSP target is the opening in counts (``--gripper-counts-per-m``), and faults name it like a joint.
 """
 
@@ -74,6 +76,7 @@ def main(argv: list[str] | None = None) -> int:
     gc.freeze()  # object dictionaries and the plant live forever: keep full GC passes short
     handlers = {name: _handler(emulator, name) for name in emulator.faults}
     handlers.update(world_handlers(emulator.plant, emulator.lock))
+    handlers["drives"] = lambda _: {"drives": emulator.report()}
     faults = FaultControlServer("127.0.0.1", args.fault_port, handlers).start()
     stop = threading.Event()
     for signum in (signal.SIGTERM, signal.SIGINT):

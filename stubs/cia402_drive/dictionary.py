@@ -7,7 +7,8 @@ tests/drivers/test_cia402_dictionary.py checks that the EDS describes this dicti
 
 Defaults are the drive's state at power-on: the predefined connection set (RPDO1 = controlword
 + target position, TPDO1 = statusword + position actual, TPDO2 = velocity actual; the other
-PDOs present but invalid), no SYNC period and no heartbeat configured, CSP the only mode.
+PDOs present but invalid), no SYNC period and no heartbeat configured (neither produced nor
+consumed), a lost connection faults the drive (0x6007 = 1), CSP the only mode.
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from stubs.cia402_drive.profile import (
     PDO_CHANNELS,
     SUPPORTED_MODE_BITS,
     SYNC_COB_ID,
+    AbortConnection,
     Index,
     Mode,
 )
@@ -66,6 +68,8 @@ class Entry:
 
 
 PROFILE: dict[Index, Entry] = {
+    Index.ABORT_CONNECTION_OPTION: Entry("Abort connection option code", I16, "rw",
+                                         AbortConnection.FAULT_SIGNAL),
     Index.ERROR_CODE: Entry("Error code", U16, "ro", pdo_mappable=True),
     Index.CONTROLWORD: Entry("Controlword", U16, "rw", pdo_mappable=True),
     Index.STATUSWORD: Entry("Statusword", U16, "ro", pdo_mappable=True),
@@ -93,11 +97,14 @@ def object_dictionary(node_id: int) -> ObjectDictionary:
     return od
 
 
-def _communication(node_id: int) -> Iterator[ODVariable | ODRecord]:
+def _communication(node_id: int) -> Iterator[ODVariable | ODRecord | ODArray]:
     yield _variable(Index.DEVICE_TYPE, Entry("Device type", U32, "ro", DEVICE_TYPE_SERVO))
     yield _variable(Index.ERROR_REGISTER, Entry("Error register", U8, "ro", 0, True))
     yield _variable(Index.COB_ID_SYNC, Entry("COB-ID SYNC", U32, "rw", SYNC_COB_ID))
     yield _variable(Index.COMM_CYCLE_PERIOD, Entry("Communication cycle period", U32, "rw"))
+    consumers = ODArray("Consumer heartbeat time", Index.HEARTBEAT_CONSUMER)
+    _add_members(consumers, [Entry("Consumer heartbeat time", U32, "rw")])  # one producer
+    yield consumers
     yield _variable(Index.HEARTBEAT_TIME, Entry("Producer heartbeat time", U16, "rw"))
     yield _record(Index.IDENTITY, "Identity object",
                   [Entry(name, U32, "ro", value) for name, value in IDENTITY])

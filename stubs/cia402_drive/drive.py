@@ -3,7 +3,9 @@
 LocalNode brings the SDO server, NMT slave, heartbeat producer and EMCY producer. Added here:
 the 402 state machine behind 0x6040/0x6041, modes of operation (0x6060/0x6061, 0x6502), the
 PDO set the master configured over SDO (rebuilt on each NMT start), RPDO decoding (applied at
-SYNC for synchronous RPDOs), TPDO transmission on SYNC, and drive faults with EMCY.
+SYNC for synchronous RPDOs), TPDO transmission on SYNC, drive faults with EMCY, and what the
+drive does when its master goes away (``supervision.py``): a heartbeat consumer (0x1016) and
+the abort connection option (0x6007) on a heartbeat event, NMT STOPPED or an NMT reset.
 
 Position counts are converted with the emulator's own encoders (``encoders.py``): radians for a
 joint drive, metres of opening for a gripper drive.
@@ -12,30 +14,34 @@ joint drive, metres of opening for a gripper drive.
 from __future__ import annotations
 
 import logging
-import struct
 import threading
 from collections.abc import Callable
-from dataclasses import dataclass
 
-from canopen import LocalNode, Network
+from canopen import LocalNode
 from canopen.objectdictionary import ODVariable
 from canopen.pdo import PdoMap
 from canopen.sdo import SdoAbortedError
 
 from stubs.cia402_drive.encoders import Encoder, LinearEncoder
+from stubs.cia402_drive.pdo import TpdoPacker, unsubscribe
 from stubs.cia402_drive.profile import (
     ABORT_VALUE_RANGE,
+    EMCY_COMMUNICATION,
     EMCY_FOLLOWING_ERROR,
+    EMCY_HEARTBEAT,
+    ERROR_REGISTER_COMMUNICATION,
     ERROR_REGISTER_GENERIC,
     ERROR_REGISTER_PROFILE,
     NO_FOLLOWING_LIMIT,
     SUPPORTED_MODE_BITS,
+    AbortConnection,
     Index,
     Mode,
     PowerState,
     StatusBit,
 )
 from stubs.cia402_drive.state_machine import PowerStateMachine
+from stubs.cia402_drive.supervision import REACTIONS, ConnectionLoss, HeartbeatConsumer
 
 log = logging.getLogger(__name__)
 
@@ -47,6 +53,16 @@ CACHED_PARAMETERS = {
     Index.RATED_TORQUE: "rated_torque",
 }
 """Objects the SYNC path reads every cycle, kept as attributes when the master writes them."""
+LOSS_ERROR_CODES = {
+    ConnectionLoss.HEARTBEAT: EMCY_HEARTBEAT,
+    ConnectionLoss.NMT_STOPPED: EMCY_COMMUNICATION,
+    ConnectionLoss.NMT_RESET: EMCY_COMMUNICATION,
+}
+"""Error code of a fault signalled on a lost connection (0x6007 = fault signal)."""
+
+
+NMT_LOSSES = {"STOPPED": ConnectionLoss.NMT_STOPPED, "INITIALISING": ConnectionLoss.NMT_RESET}
+"""NMT states (as canopen names them) whose entry is a lost connection for 0x6007."""
 
 
 class EmulatedDrive:
@@ -87,6 +103,11 @@ class EmulatedDrive:
         }
         """Objects whose value is the drive's live state, not a stored parameter."""
         self._tpdos: tuple[TpdoPacker, ...] = ()
+        self.consumer = HeartbeatConsumer()
+        self.abort_option = AbortConnection(node.sdo[Index.ABORT_CONNECTION_OPTION].raw)
+        self.connection_losses: list[ConnectionLoss] = []
+        """Every lost connection the drive reacted to, in order (tests read it)."""
+        self._heartbeat_error = False
         node.add_read_callback(self._on_read)
         node.add_write_callback(self._on_write)
         for pdo in node.rpdo.map.values():
@@ -135,6 +156,10 @@ class EmulatedDrive:
                 self._on_mode(value)
             elif index == Index.QUICK_STOP_OPTION:
                 self.machine.quick_stop_option = value
+            elif index == Index.ABORT_CONNECTION_OPTION:
+                self.abort_option = _abort_option(value)
+            elif index == Index.HEARTBEAT_CONSUMER:
+                self._on_consumer(value)
             elif index == Index.SOFTWARE_LIMITS:
                 low, high = self._limits
                 self._limits = (value, high) if subindex == 1 else (low, value)
@@ -149,6 +174,12 @@ class EmulatedDrive:
         if was_enabled and not self.machine.enabled:
             self._hold_q = None  # brake where the joint is now
 
+    def _on_consumer(self, entry: int) -> None:
+        try:
+            self.consumer.configure(entry)
+        except ValueError as error:
+            raise SdoAbortedError(ABORT_VALUE_RANGE) from error
+
     def _on_mode(self, mode: int) -> None:
         if mode not in {Mode.NO_MODE, *SUPPORTED_MODE_BITS}:
             raise SdoAbortedError(ABORT_VALUE_RANGE)  # as a drive does for a mode it lacks
@@ -158,13 +189,56 @@ class EmulatedDrive:
     # -- faults --------------------------------------------------------------------------------
 
     def fault(self, code: int, register: int = ERROR_REGISTER_GENERIC) -> None:
-        """A drive fault: FAULT, error code and register latched, EMCY sent."""
+        """A drive fault: FAULT, error code and register latched, EMCY sent (unless NMT
+        STOPPED, where a node sends only its heartbeat: CiA 301)."""
         with self._lock:
             self.machine.fault()
             self._hold_q = None
             self.error_code = code
             self.error_register = register | ERROR_REGISTER_GENERIC  # set with any error
-            self.node.emcy.send(code, self.error_register)
+            if self.node.nmt.state != "STOPPED":
+                self.node.emcy.send(code, self.error_register)
+
+    # -- a lost master (supervision.py) --------------------------------------------------------
+
+    def on_heartbeat(self, producer: int, now: float) -> None:
+        """Some node's heartbeat (or boot-up) was received."""
+        self.consumer.heard(producer, now)
+        if self._heartbeat_error and self.consumer.last_heard is not None:
+            self._heartbeat_error = False  # the heartbeat event is resolved
+            if self.machine.state is not PowerState.FAULT:  # a fault stays until its reset
+                self.error_register = 0
+                self.node.emcy.reset()
+
+    def supervise(self, now: float) -> None:
+        """The drive's heartbeat event, if its consumer is overdue (the emulator's clock calls
+        this under its lock, once no received frame waits to be handled)."""
+        if self.consumer.overdue(now):
+            self.consumer.expire()
+            self.connection_lost(ConnectionLoss.HEARTBEAT)
+
+    def connection_lost(self, loss: ConnectionLoss) -> None:
+        """React as 0x6007 says. A heartbeat event is also an EMCY (0x8130), and takes an
+        OPERATIONAL drive to PRE-OPERATIONAL: CiA 301's error behaviour for a communication
+        error where 0x1029 is not implemented (as here); its PDOs stop with it."""
+        self.connection_losses.append(loss)
+        if loss is ConnectionLoss.HEARTBEAT:
+            self._heartbeat_error = True
+            if self.operational:
+                self.node.nmt.state = "PRE-OPERATIONAL"
+                self._nmt_state = self.node.nmt.state
+        if self.abort_option is AbortConnection.FAULT_SIGNAL:
+            self.fault(LOSS_ERROR_CODES[loss], ERROR_REGISTER_COMMUNICATION)
+            return
+        if loss is ConnectionLoss.HEARTBEAT:
+            self.error_register |= ERROR_REGISTER_COMMUNICATION | ERROR_REGISTER_GENERIC
+            self.node.emcy.send(EMCY_HEARTBEAT, self.error_register)
+        command = REACTIONS[self.abort_option]
+        if command is not None:
+            was_enabled = self.machine.enabled
+            self.machine.apply(command)
+            if was_enabled and not self.machine.enabled:
+                self._hold_q = None  # brake where the joint is now
 
     def stop_heartbeat(self) -> None:
         self.heartbeat_stopped = True
@@ -177,22 +251,27 @@ class EmulatedDrive:
     # -- PDOs ----------------------------------------------------------------------------------
 
     def on_nmt(self) -> None:
-        """After an NMT command: entering OPERATIONAL activates the PDO set written over SDO."""
-        state = self.node.nmt.state
-        entering = state == "OPERATIONAL" and self._nmt_state != "OPERATIONAL"
+        """After an NMT command: entering OPERATIONAL activates the PDO set written over SDO;
+        entering STOPPED, or a reset (canopen's NMT slave then reports INITIALISING), is a lost
+        connection (what the reset itself would do next is not emulated)."""
+        state, previous = self.node.nmt.state, self._nmt_state
         self._nmt_state = state
-        if entering:
+        if state == previous:
+            return
+        if state == "OPERATIONAL":
             self._rebuild_pdos()
+        elif state in NMT_LOSSES:
+            self.connection_lost(NMT_LOSSES[state])
 
     def _rebuild_pdos(self) -> None:
         network = self.node.network
         for pdo in [*self.node.rpdo.map.values(), *self.node.tpdo.map.values()]:
             if pdo.cob_id is not None:
-                _unsubscribe(network, pdo)
+                unsubscribe(network, pdo)
         self.node.rpdo.read()
         self.node.tpdo.read()
         for pdo in self.node.tpdo.map.values():
-            _unsubscribe(network, pdo)  # our own TPDOs come back on an echoing bus
+            unsubscribe(network, pdo)  # our own TPDOs come back on an echoing bus
         self._tpdos = tuple(
             TpdoPacker.from_map(pdo) for pdo in self.node.tpdo.map.values()
             if pdo.enabled and pdo.trans_type is not None and pdo.trans_type <= 240
@@ -265,39 +344,9 @@ class EmulatedDrive:
             self.fault(EMCY_FOLLOWING_ERROR, ERROR_REGISTER_PROFILE)
 
 
-@dataclass(frozen=True, slots=True)
-class TpdoPacker:
-    """One TPDO's layout, compiled once per NMT start: SYNC then only packs numbers.
-
-    (Going through ``LocalNode.get_data`` and ``PdoVariable.set_data`` per object cost most of
-    a SYNC's time with six drives.)
-    """
-
-    cob_id: int
-    every: int
-    size: int
-    fields: tuple[tuple[ODVariable, struct.Struct, int], ...]
-    """(object, encoding, byte offset) per mapped object."""
-
-    @classmethod
-    def from_map(cls, pdo: PdoMap) -> TpdoPacker:
-        fields = []
-        for var in pdo:
-            if not var.length:
-                continue
-            if var.offset % 8 or var.length % 8:
-                raise ValueError(f"TPDO 0x{pdo.cob_id:X}: only byte-aligned objects are emulated")
-            fields.append((var.od, var.od.STRUCT_TYPES[var.od.data_type], var.offset // 8))
-        size = sum(f[1].size for f in fields)
-        return cls(int(pdo.cob_id or 0), max(1, int(pdo.trans_type or 1)), size, tuple(fields))
-
-    def pack(self, value: Callable[[ODVariable], int]) -> bytearray:
-        data = bytearray(self.size)
-        for od, encoding, offset in self.fields:
-            encoding.pack_into(data, offset, value(od))
-        return data
-
-
-def _unsubscribe(network: Network, pdo: PdoMap) -> None:
-    if pdo.cob_id is not None and pdo.on_message in network.subscribers.get(pdo.cob_id, []):
-        network.unsubscribe(pdo.cob_id, pdo.on_message)
+def _abort_option(value: int) -> AbortConnection:
+    """0x6007 as written; this drive has no manufacturer-specific (negative) reactions."""
+    try:
+        return AbortConnection(value)
+    except ValueError as error:
+        raise SdoAbortedError(ABORT_VALUE_RANGE) from error

@@ -6,14 +6,23 @@ On every SYNC the emulator applies the RPDOs received since the last one, comman
 wall time since the previous SYNC (capped, so a pause in SYNC is not a jump), and answers with
 the TPDOs. The gripper drive is a drive like the others (NMT, SDO, PDOs, 402 states, heartbeat,
 EMCY, fault injection by node id); only its link to the plant differs (``gripper.py``).
-Frames are handled on canopen's notifier thread; one lock orders them against fault injection.
-In-process on ``virtual``; across processes on ``udp_multicast`` (``__main__``).
+
+The drives also keep their own time, as a drive's firmware does whatever the bus does: a clock
+thread checks every drive's heartbeat consumer each millisecond, and once SYNC is late it steps
+the plant itself with the drives' last targets (a motor does not freeze when its master stops
+talking; without this, a dead master would freeze the emulated arm mid-motion). A consumer is
+judged only while no received frame waits in the bus's socket: a real drive's CAN controller
+takes a frame in as it arrives, this process may be behind (a busy core) with the heartbeat
+among the frames it has not read yet.
+Frames are handled on canopen's notifier thread; one lock orders them, the clock and fault
+injection. In-process on ``virtual``; across processes on ``udp_multicast`` (``__main__``).
 """
 
 from __future__ import annotations
 
 import logging
 import os
+import select
 import socket
 import threading
 import time
@@ -40,6 +49,13 @@ log = logging.getLogger(__name__)
 
 MAX_SYNC_GAP_PERIODS = 4
 """A SYNC after a longer pause advances the plant by at most this many cycle periods."""
+CLOCK_TICK_S = 0.001
+"""The drives' own clock: how often heartbeat consumers are checked (the emulated drive's
+check interval) and, while SYNC is late, the plant is stepped."""
+LATE_SYNC_PERIODS = 1.5
+"""SYNC is late this many cycle periods after the last one: the clock steps the plant."""
+HEARTBEAT_COB_IDS = range(0x701, 0x780)
+"""Heartbeats (and boot-ups) of node ids 1-127: a drive's consumer may watch any of them."""
 DEFAULT_CYCLE_US = 2000
 GRIPPER_COUNTS_PER_M = 1_000_000.0
 """The gripper drive's stroke sensor as built by default: one count per micrometre of opening
@@ -77,6 +93,8 @@ class EmulatorConfig:
 @dataclass(slots=True)
 class _SyncClock:
     last: float | None = None
+    """When the plant was last stepped (monotonic)."""
+    last_sync: float | None = None
     debt_ns: int = 0
     count: int = 0
 
@@ -98,6 +116,10 @@ class DriveEmulator:
         self.gripper: GripperLink | None = None
         self._network: canopen.Network | None = None
         self._clock = _SyncClock()
+        self._stopping = threading.Event()
+        self._fd = -1
+        self._clock_thread = threading.Thread(target=self._keep_time, name="drive-clock",
+                                              daemon=True)
         self.faults: dict[str, Callable[..., None]] = {
             "emcy": self._fault_emcy,
             "heartbeat_stop": self._fault_heartbeat_stop,
@@ -118,13 +140,17 @@ class DriveEmulator:
             self._add_drives(network)
             network.subscribe(SYNC_COB_ID, self._on_sync)
             network.subscribe(NMT_COB_ID, self._on_nmt)
+            for cob_id in HEARTBEAT_COB_IDS:
+                network.subscribe(cob_id, self._on_heartbeat)
             self._network = network.connect()
+            self._fd = _fileno(bus)
         except BaseException:
             bus.shutdown()
             raise
         for drive in self.drives.values():
             drive.node.nmt.state = "RESET"  # sends the boot-up message
             drive.node.nmt.state = "PRE-OPERATIONAL"
+        self._clock_thread.start()
         return self
 
     def _add_drives(self, network: canopen.Network) -> None:
@@ -152,6 +178,9 @@ class DriveEmulator:
         network, self._network = self._network, None
         if network is None:
             return
+        self._stopping.set()
+        if self._clock_thread.is_alive():
+            self._clock_thread.join(timeout=1.0)
         for drive in self.drives.values():
             drive.node.nmt.stop_heartbeat()
         network.disconnect()
@@ -175,8 +204,36 @@ class DriveEmulator:
             for drive in self.drives.values():
                 drive.on_nmt()
 
+    def _on_heartbeat(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        now = time.monotonic()
+        with self.lock:
+            for drive in self.drives.values():
+                drive.on_heartbeat(can_id - 0x700, now)
+
+    def _keep_time(self) -> None:
+        while not self._stopping.wait(CLOCK_TICK_S):
+            with self.lock:
+                now = time.monotonic()
+                overdue = [d for d in self.drives.values() if d.consumer.overdue(now)]
+                if overdue and not self._frames_waiting():
+                    for drive in overdue:
+                        drive.supervise(now)
+                last_sync = self._clock.last_sync
+                if last_sync is None or now - last_sync > LATE_SYNC_PERIODS * (
+                        self._cycle_ns() * 1e-9):
+                    self._move_plant()
+
+    def _frames_waiting(self) -> bool:
+        """Received frames not read yet (a bus without a file descriptor, ``virtual``, is
+        read by a thread of this process that keeps up: never)."""
+        if self._fd < 0:
+            return False
+        readable, _, _ = select.select([self._fd], [], [], 0)
+        return bool(readable)
+
     def _on_sync(self, can_id: int, data: bytearray, timestamp: float) -> None:
         with self.lock:
+            self._clock.last_sync = time.monotonic()
             operational = [d for d in self.drives.values() if d.operational]
             for drive in operational:
                 drive.apply_pending_rpdos()
@@ -202,7 +259,8 @@ class DriveEmulator:
             self.gripper.measure(state)
 
     def _steps_due(self) -> int:
-        """Plant steps for the wall time since the previous SYNC, capped at a few cycles."""
+        """Plant steps for the wall time since the plant last stepped (at a SYNC or on the
+        clock), capped at a few cycles."""
         now = time.monotonic()
         cycle_ns = self._cycle_ns()
         elapsed_ns = cycle_ns if self._clock.last is None else int(1e9 * (now - self._clock.last))
@@ -230,6 +288,18 @@ class DriveEmulator:
         if node not in self.drives:
             raise KeyError(f"no drive with node id {node}")
         return self.drives[node]
+
+    def report(self) -> dict[str, Any]:
+        """Every drive as it is now, by node id (the test control port's ``drives``)."""
+        with self.lock:
+            return {str(node_id): {
+                "state": str(drive.state), "statusword": drive.statusword(),
+                "nmt": drive.node.nmt.state, "abort_option": int(drive.abort_option),
+                "consumer": {"producer": drive.consumer.producer,
+                             "timeout_ms": round(drive.consumer.timeout_s * 1000)},
+                "connection_losses": [str(loss) for loss in drive.connection_losses],
+                "error_code": drive.error_code,
+            } for node_id, drive in self.drives.items()}
 
     def _fault_emcy(self, node: int | None = None, code: int = EMCY_OVER_CURRENT,
                     register: int = ERROR_REGISTER_CURRENT) -> None:
@@ -262,6 +332,13 @@ def encoders_for(node_ids: Sequence[int], counts_per_rev: int,
 
 
 
+def _fileno(bus: can.BusABC) -> int:
+    try:
+        return bus.fileno()
+    except NotImplementedError:
+        return -1
+
+
 def widen_receive_buffer(bus: can.BusABC, size: int = UDP_RECEIVE_BUFFER) -> None:
     """Let a UDP-backed bus ride through a stall of this process without dropping frames.
 
@@ -271,10 +348,7 @@ def widen_receive_buffer(bus: can.BusABC, size: int = UDP_RECEIVE_BUFFER) -> Non
     and RPDOs. Works on a duplicate of the bus's public ``fileno()``: same socket, no private
     attributes. Buses without a file descriptor (``virtual``) are left as they are.
     """
-    try:
-        fd = bus.fileno()
-    except NotImplementedError:
-        return
+    fd = _fileno(bus)
     if fd < 0:
         return
     with socket.socket(fileno=os.dup(fd)) as sock:

@@ -20,12 +20,17 @@ class Index(IntEnum):
     COB_ID_SYNC = 0x1005
     COMM_CYCLE_PERIOD = 0x1006
     """SYNC interval in microseconds: the emulator steps its plant by it."""
+    HEARTBEAT_CONSUMER = 0x1016
+    """Consumer heartbeat time: per sub-index, the node id it watches (bits 16-23) and how long
+    that node's heartbeat may stay away, in ms (bits 0-15); 0 in either: not used."""
     HEARTBEAT_TIME = 0x1017
     IDENTITY = 0x1018
     RPDO_COMMUNICATION = 0x1400
     RPDO_MAPPING = 0x1600
     TPDO_COMMUNICATION = 0x1800
     TPDO_MAPPING = 0x1A00
+    ABORT_CONNECTION_OPTION = 0x6007
+    """What the drive does when its connection to the master is lost (``AbortConnection``)."""
     ERROR_CODE = 0x603F
     CONTROLWORD = 0x6040
     STATUSWORD = 0x6041
@@ -59,6 +64,20 @@ class Mode(IntEnum):
 
 SUPPORTED_MODE_BITS = {Mode.CYCLIC_SYNCHRONOUS_POSITION: 1 << 7}
 """0x6502 has one bit per mode; CSP is bit 7 (CiA 402-2, 0x6502)."""
+
+
+class AbortConnection(IntEnum):
+    """0x6007 values (CiA 402-2): the drive's reaction to a lost connection (bus-off, heartbeat
+    or life guarding event, NMT STOPPED, reset application, reset communication). Negative
+    values are manufacturer-specific; this drive has none."""
+
+    NO_ACTION = 0
+    FAULT_SIGNAL = 1
+    """Into FAULT through FAULT REACTION ACTIVE, as any drive fault."""
+    DISABLE_VOLTAGE = 2
+    """The disable voltage command: power stage off, SWITCH ON DISABLED."""
+    QUICK_STOP = 3
+    """The quick stop command: down the quick-stop ramp, then as 0x605A says."""
 
 
 class ControlBit(IntEnum):
@@ -140,10 +159,15 @@ DEVICE_TYPE_SERVO = 0x0002_0192
 """0x1000: device profile 402 (low word) with the servo drive type (bits 16-23 = 0x02)."""
 ERROR_REGISTER_GENERIC = 1 << 0
 ERROR_REGISTER_CURRENT = 1 << 1
+ERROR_REGISTER_COMMUNICATION = 1 << 4
 ERROR_REGISTER_PROFILE = 1 << 5
 NO_FOLLOWING_LIMIT = 0xFFFF_FFFF
 """0x6065 = all ones: following-error supervision off."""
 ABORT_VALUE_RANGE = 0x0609_0030
 """SDO abort code: value range of parameter exceeded (CiA 301, table 22)."""
 EMCY_FOLLOWING_ERROR = 0x8611
+EMCY_HEARTBEAT = 0x8130
+"""Life guard error or heartbeat error (CiA 301, table 21)."""
+EMCY_COMMUNICATION = 0x8100
+"""Communication, generic (CiA 301, table 21)."""
 EMCY_OVER_CURRENT = 0x2310

@@ -1,8 +1,9 @@
 """The CiA 402 device-control state machine of one drive: controlword in, state out (pure).
 
 Transitions are numbered as in CiA 402-2, figure 12. The emulator calls ``on_controlword`` for
-every controlword it receives (SDO or RPDO), ``fault`` when a drive fault occurs and
-``quick_stop_input`` for a quick stop the drive makes on its own.
+every controlword it receives (SDO or RPDO), ``fault`` when a drive fault occurs,
+``quick_stop_input`` for a quick stop the drive makes on its own, and ``apply`` for a command
+the drive gives itself (0x6007, on a lost connection).
 """
 
 from __future__ import annotations
@@ -78,6 +79,12 @@ class PowerStateMachine:
             return False
         self.state = TRANSITIONS.get((self.state, command), self.state)
         return False
+
+    def apply(self, command: DeviceCommand) -> None:
+        """A device-control command from the drive itself: the same transitions as the
+        master's, without touching the controlword history (a fault reset stays an edge)."""
+        if self.state is not S.FAULT:
+            self.state = TRANSITIONS.get((self.state, command), self.state)
 
     def fault(self) -> None:
         """Fault reaction is instantaneous here: straight to FAULT (13, 14)."""

@@ -26,6 +26,11 @@ GRIPPER_NODE = 7
 manifests/sim-canopen.toml."""
 
 
+TEST_WATCHDOG_MS = 1000
+"""The drives' watchdog on warden in these tests: tests pause between writes (a real control
+loop never does), and on the shared 2-core test machine a test process was once silent for
+0.47 s; the watchdog tests set the default where they check it."""
+
 TEST_PERIOD_NS = 4_000_000
 """250 Hz in tests: half the bus traffic of 500 Hz on a shared 2-core host; bench/ measures
 the faster rates."""
@@ -67,5 +72,6 @@ def driver_settings(interface: str, channel: str, udp_port: int = 43113,
         interface=interface, channel=channel, udp_port=udp_port, node_ids=NODE_IDS,
         counts_per_rev=(float(COUNTS_PER_REV),) * len(NODE_IDS), direction=DIRECTIONS,
         offset_counts=OFFSETS, sdo_timeout_s=1.0, state_timeout_s=2.0,
+        watchdog_ms=TEST_WATCHDOG_MS,
     )
     return replace(settings, **overrides)
