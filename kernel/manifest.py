@@ -18,6 +18,7 @@ from typing import Any
 
 from drivers.settings import SettingsError, settings_from_mapping
 from kernel.core.config import CoreConfig
+from kernel.safety.settings import SafetySettings, check_against_period
 from kernel.scenario.config import build_config, check_keys
 from kernel.scenario.fields import ScenarioError, Where
 
@@ -114,10 +115,13 @@ class Manifest:
     task: dict[str, Any] = field(default_factory=dict)
     """``[task]`` as written: the assembly task's layout (:mod:`kernel.app.task` checks it)."""
     operator: OperatorSettings = field(default_factory=OperatorSettings)
+    safety: SafetySettings | None = None
+    """``[safety]``: the independent safety monitor and warden's heartbeat to it (None: no
+    such table, warden sends no heartbeat and the monitor refuses the manifest)."""
 
 
 _TOP_KEYS = frozenset({"name", "description", "cell", "driver", "emulator", "policy",
-                       "journal", "task", "operator", *SCENARIO_SECTIONS})
+                       "journal", "task", "operator", "safety", *SCENARIO_SECTIONS})
 
 
 def load_manifest(path: str | Path) -> Manifest:
@@ -151,6 +155,7 @@ def load_manifest(path: str | Path) -> Manifest:
         journal=_settings(JournalSettings, doc, "journal", where),
         task=dict(_table(doc, "task", where)),
         operator=_settings(OperatorSettings, doc, "operator", where),
+        safety=_safety(doc, where, core.control_period_ns),
     )
 
 
@@ -185,6 +190,16 @@ def _table(doc: Mapping[str, Any], key: str, where: Where) -> Mapping[str, Any]:
     if not isinstance(value, dict):
         raise where.at(key).error("must be a table")
     return value
+
+
+def _safety(doc: Mapping[str, Any], where: Where, period_ns: int) -> SafetySettings | None:
+    if "safety" not in doc:
+        return None
+    settings: SafetySettings = _settings(SafetySettings, doc, "safety", where)
+    problem = check_against_period(settings, period_ns)
+    if problem:
+        raise where.at("safety").at("heartbeat_timeout_ms").error(problem)
+    return settings
 
 
 def _settings(cls: type, doc: Mapping[str, Any], key: str, where: Where) -> Any:
