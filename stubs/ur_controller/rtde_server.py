@@ -6,12 +6,19 @@ frequency and variable names; we answer the UR types, ``NOT_FOUND`` for unknown 
 number of input recipes (ids 1..N in setup order; ``IN_USE`` when another session already writes
 one of the variables), then starts. From then on the controller sends one data package per
 output period and applies every data package the client sends to the registers.
+
+Sessions are independent, as on the controller: any number of clients read at once (warden's
+driver, and the safety monitor's own receive session), and one that stops reading (a stopped
+process) never holds back the controller's cycle or another client. The cycle only queues each
+session's data package; the session's own writer thread sends it, and a full queue drops the
+package for that session alone.
 """
 
 from __future__ import annotations
 
 import contextlib
 import itertools
+import queue
 import socket
 import struct
 import sys
@@ -39,6 +46,9 @@ from stubs.ur_controller.watchdog import RTDEWatchdogs
 HEADER = struct.Struct(">HB")
 PROTOCOL_VERSION = 2
 SEND_TIMEOUT_S = 1.0
+OUTBOX_PACKAGES = 64
+"""Data packages a session may have waiting (128 ms at 500 Hz) before new ones are dropped."""
+_WRITER_POLL_S = 0.1
 
 
 class Message(IntEnum):
@@ -104,6 +114,9 @@ class RTDESession:
         self._on_close = on_close
         self._send_lock = threading.Lock()
         self._closed = False
+        self._outbox: queue.Queue[bytes] = queue.Queue(maxsize=OUTBOX_PACKAGES)
+        self.dropped = 0
+        """Data packages dropped because this client did not read them in time."""
         self._handlers: dict[int, Callable[[bytes], None]] = {
             Message.REQUEST_PROTOCOL_VERSION: self._negotiate,
             Message.GET_URCONTROL_VERSION: self._send_version,
@@ -118,6 +131,7 @@ class RTDESession:
         sock.settimeout(SEND_TIMEOUT_S)
 
     def serve(self) -> None:
+        threading.Thread(target=self._write_data, name="rtde-writer", daemon=True).start()
         try:
             while True:
                 kind, payload = self._read_message()
@@ -128,9 +142,25 @@ class RTDESession:
             self.close()
 
     def send_data(self, frame: Frame, cycle: int) -> None:
+        """Queue this cycle's package (never blocks the controller's cycle)."""
         recipe = self.outputs
         if recipe is not None and cycle % recipe.every_n_cycles == 0:
-            self._send(Message.DATA_PACKAGE, recipe.pack(frame))
+            try:
+                self._outbox.put_nowait(recipe.pack(frame))
+            except queue.Full:
+                self.dropped += 1
+
+    def _write_data(self) -> None:
+        while not self._closed:
+            try:
+                package = self._outbox.get(timeout=_WRITER_POLL_S)
+            except queue.Empty:
+                continue
+            try:
+                self._send(Message.DATA_PACKAGE, package)
+            except OSError:
+                self.close()  # a client that cannot take data for a second is gone
+                return
 
     def close(self) -> None:
         with self._send_lock:
@@ -214,8 +244,9 @@ class RTDESession:
         return kind.value
 
     def _start(self, _: bytes) -> None:
-        self.started = self.outputs is not None or bool(self.inputs)
-        self._send(Message.START, bytes([self.started]))
+        started = self.outputs is not None or bool(self.inputs)
+        self._send(Message.START, bytes([started]))
+        self.started = started  # after the answer: no data package may overtake it
 
     def _pause(self, _: bytes) -> None:
         self.started = False
