@@ -23,6 +23,7 @@ from drivers.base import DriverError
 from kernel import signing
 from kernel.cli_operator import add_commands as add_operator_commands
 from kernel.cli_run import add_commands
+from kernel.cli_safety import add_commands as add_safety_commands
 from kernel.core.lines import encode
 from kernel.replay import Replay, as_dict, check_expectations
 from kernel.scenario import Scenario, ScenarioError, load_scenario
@@ -65,6 +66,7 @@ def _parser() -> argparse.ArgumentParser:
     rep.set_defaults(handler=_replay)
     add_commands(commands)
     add_operator_commands(commands)
+    add_safety_commands(commands)
     signing.add_commands(commands)
     return parser
 
