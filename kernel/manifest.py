@@ -198,7 +198,7 @@ def _safety(doc: Mapping[str, Any], where: Where, period_ns: int) -> SafetySetti
     settings: SafetySettings = _settings(SafetySettings, doc, "safety", where)
     problem = check_against_period(settings, period_ns)
     if problem:
-        raise where.at("safety").at("heartbeat_timeout_ms").error(problem)
+        raise ManifestError(f"{where.file}: safety.heartbeat_timeout_ms: {problem}")
     return settings
 
 

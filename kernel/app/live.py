@@ -130,6 +130,7 @@ class _Loop:
                 self._report()
                 if self.hook is not None and self.hook(self.context):
                     break
+        self.heartbeat.closing()  # ended in order (an error skips this: the monitor stops)
 
     def _report(self) -> None:
         report_progress(self.context, self.progress)

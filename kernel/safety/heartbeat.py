@@ -8,9 +8,11 @@ sender's CLOCK_MONOTONIC stamp, never its arrival: a datagram that waited in the
 warden was already stopped does not count as fresh.
 
 States (:class:`Pulse`): NONE, no warden run is heartbeating (none since the monitor started, or
-the last one sent END); ALIVE, the newest heartbeat is younger than the timeout; LOST, it is
-older. One run (one session id) is followed at a time; another run's heartbeats are taken up
-only once the current one has ended or been lost.
+the last one sent END); ALIVE, the newest heartbeat is younger than ``heartbeat_timeout_ms``;
+CLOSING, the run's loop has ended in order and it is holding the arm and closing the device
+(for up to ``closing_timeout_ms``); LOST, either of those timeouts has passed. One run (one
+session id) is followed at a time; another run's heartbeats are taken up only once the current
+one has ended or been lost.
 """
 
 from __future__ import annotations
@@ -36,6 +38,7 @@ _FUTURE_TOLERANCE_NS = 1_000_000
 class Pulse(StrEnum):
     NONE = "none"
     ALIVE = "alive"
+    CLOSING = "closing"
     LOST = "lost"
 
 
@@ -46,6 +49,8 @@ class Session:
     uid: int
     last_seq: int
     last_ns: int
+    closing_ns: int | None = None
+    """When warden said CLOSING (its stamp), or None."""
 
 
 @dataclass(slots=True)
@@ -56,8 +61,8 @@ class PulseCounters:
 
 
 class HeartbeatReceiver:
-    def __init__(self, path: Path, gid: int, timeout_ns: int) -> None:
-        self.path, self.timeout_ns = path, timeout_ns
+    def __init__(self, path: Path, gid: int, timeout_ns: int, closing_timeout_ns: int) -> None:
+        self.path, self.timeout_ns, self.closing_timeout_ns = path, timeout_ns, closing_timeout_ns
         self.counters = PulseCounters()
         self.current: Session | None = None
         self._refusals_logged: set[str] = set()
@@ -77,9 +82,13 @@ class HeartbeatReceiver:
         return self._sock.fileno()
 
     def state(self, now_ns: int) -> Pulse:
-        if self.current is None:
+        current = self.current
+        if current is None:
             return Pulse.NONE
-        return Pulse.LOST if now_ns - self.current.last_ns > self.timeout_ns else Pulse.ALIVE
+        if current.closing_ns is not None:
+            late = now_ns - current.closing_ns > self.closing_timeout_ns
+            return Pulse.LOST if late else Pulse.CLOSING
+        return Pulse.LOST if now_ns - current.last_ns > self.timeout_ns else Pulse.ALIVE
 
     def age_ms(self, now_ns: int) -> float | None:
         return None if self.current is None else (now_ns - self.current.last_ns) / 1e6
@@ -118,11 +127,11 @@ class HeartbeatReceiver:
     def _follow(self, beat: Beat, uid: int, now_ns: int) -> None:
         current = self.current
         if current is None or current.session != beat.session:
-            if current is not None and self.state(now_ns) is Pulse.ALIVE:
+            if current is not None and self.state(now_ns) is not Pulse.LOST:
                 self._refuse("second run", f"pid {beat.pid} heartbeats while pid "
                                            f"{current.pid} still does")
                 return
-            if beat.kind is BeatKind.END:
+            if beat.kind is not BeatKind.BEAT:
                 return  # the end of a run this monitor never followed
             self.current = Session(beat.session, beat.pid, uid, beat.seq, beat.t_mono_ns)
             self.counters.sessions += 1
@@ -135,6 +144,9 @@ class HeartbeatReceiver:
         if beat.kind is BeatKind.END:
             log.info("warden ended its run", pid=beat.pid)
             self.current = None
+        elif beat.kind is BeatKind.CLOSING:
+            current.closing_ns = beat.t_mono_ns
+            log.info("warden is closing its run", pid=beat.pid)
         elif lost:
             log.warning("warden heartbeat back after it was lost", pid=beat.pid)
 

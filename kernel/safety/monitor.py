@@ -121,11 +121,15 @@ class Monitor:
 
     def _heartbeat_findings(self, sample: Sample | None, now: int) -> list[Finding]:
         pulse = self.heartbeat.state(now)
-        if pulse is Pulse.LOST:
-            age = self.heartbeat.age_ms(now)
-            pid = self.heartbeat.current.pid if self.heartbeat.current else "?"
-            return [Finding(Breach.HEARTBEAT_LOST, f"no heartbeat from warden (pid {pid}) for "
-                            f"{age:.0f} ms (timeout {self.settings.heartbeat_timeout_ms:g} ms)")]
+        current = self.heartbeat.current
+        if pulse is Pulse.LOST and current is not None and current.closing_ns is not None:
+            return [Finding(Breach.HEARTBEAT_LOST, f"warden (pid {current.pid}) said its loop "
+                            "ended but did not finish closing within "
+                            f"{self.settings.closing_timeout_ms:g} ms")]
+        if pulse is Pulse.LOST and current is not None:
+            return [Finding(Breach.HEARTBEAT_LOST, f"no heartbeat from warden (pid "
+                            f"{current.pid}) for {self.heartbeat.age_ms(now):.0f} ms (timeout "
+                            f"{self.settings.heartbeat_timeout_ms:g} ms)")]
         if pulse is Pulse.NONE and sample is not None and sample.fastest > self._moving:
             return [Finding(Breach.MOTION_WITHOUT_WARDEN,
                             f"a joint moves at {sample.fastest:.3f} rad/s and no warden run is "

@@ -85,7 +85,8 @@ def serve(path: str) -> None:
     settings = chosen.settings
     with contextlib.ExitStack() as stack:
         heartbeat = _bound(lambda: HeartbeatReceiver(
-            settings.heartbeat_path, chosen.gid, settings.heartbeat_timeout_ns), "heartbeat")
+            settings.heartbeat_path, chosen.gid, settings.heartbeat_timeout_ns,
+            settings.closing_timeout_ns), "heartbeat")
         stack.callback(heartbeat.close)
         watch = _connected(chosen)
         stack.callback(watch.close)

@@ -33,9 +33,12 @@ class SafetySettings:
     heartbeat_timeout_ms: float = 200.0
     """No heartbeat for this long (sender's clock, the same CLOCK_MONOTONIC) and the monitor
     stops the arm."""
+    closing_timeout_ms: float = 10_000.0
+    """After warden says its loop ended (CLOSING), how long it may take to hold the arm and
+    close the device before it must say END; longer counts as a lost heartbeat."""
     check_period_ms: float = 4.0
     """How often the monitor reads the device and checks everything."""
-    device_timeout_ms: float = 100.0
+    device_timeout_ms: float = 250.0
     """The device's data older than this (or unanswered) counts as the device lost."""
     position_margin_rad: float = 0.02
     """Allowance beyond each joint's position limit before a breach (measured overshoot)."""
@@ -70,11 +73,16 @@ class SafetySettings:
     def heartbeat_timeout_ns(self) -> int:
         return round(self.heartbeat_timeout_ms * 1e6)
 
+    @property
+    def closing_timeout_ns(self) -> int:
+        return round(self.closing_timeout_ms * 1e6)
+
 
 def _problems(s: SafetySettings) -> list[str]:
     ranges = [
         ("heartbeat_periods", s.heartbeat_periods, 1, 1000),
         ("heartbeat_timeout_ms", s.heartbeat_timeout_ms, 10.0, 10_000.0),
+        ("closing_timeout_ms", s.closing_timeout_ms, 100.0, 120_000.0),
         ("check_period_ms", s.check_period_ms, 1.0, 100.0),
         ("device_timeout_ms", s.device_timeout_ms, 10.0, 10_000.0),
         ("position_margin_rad", s.position_margin_rad, 0.0, 0.5),

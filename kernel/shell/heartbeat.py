@@ -4,8 +4,11 @@ The control loop calls :meth:`HeartbeatSender.beat` after every completed tick; 
 ``heartbeat_periods``-th call sends one datagram to the monitor's Unix datagram socket
 (``[safety] heartbeat_socket``). A loop that stops completing ticks (a hang, SIGSTOP, a crash)
 stops the heartbeat, and the monitor stops the arm once ``heartbeat_timeout_ms`` has passed.
-When the run ends in order (the arm held, the device closed) :meth:`close` sends END, so the
-monitor knows the silence that follows is not a failure.
+When the loop ends in order, :meth:`closing` sends CLOSING (no more ticks: warden is holding
+the arm and closing the device, which takes longer than a heartbeat's timeout with some vendor
+libraries; the monitor then waits up to ``closing_timeout_ms``), and once the arm is held and
+the device closed, :meth:`close` sends END, so the monitor knows the silence that follows is
+not a failure.
 
 Why a Unix datagram socket and not UDP on loopback: only members of the socket file's group
 can send to it (any local process can send to a UDP port), the kernel attaches the sender's
@@ -14,7 +17,8 @@ the payload, and a datagram is never half-delivered. Sends are non-blocking and 
 into the loop: a monitor that is not there costs one failed ``sendto`` per heartbeat, counted
 and logged once.
 
-Wire format (little-endian, 40 bytes): magic ``WDHB``, kind (1 beat, 2 end), 3 pad bytes,
+Wire format (little-endian, 40 bytes): magic ``WDHB``, kind (1 beat, 2 end, 3 closing), 3 pad
+bytes,
 pid (u32), session (u64, random per run), seq (u64, from 0), t_mono_ns (u64, CLOCK_MONOTONIC
 of the sender at the send; the monitor judges the heartbeat's age by it, so a datagram that
 sat in a queue is not mistaken for a fresh one).
@@ -42,6 +46,7 @@ WIRE = struct.Struct("<4sB3xIQQQ")
 class BeatKind(IntEnum):
     BEAT = 1
     END = 2
+    CLOSING = 3
 
 
 @dataclass(frozen=True, slots=True)
@@ -87,6 +92,7 @@ class HeartbeatSender:
         self._pid = os.getpid()
         self._ticks = 0
         self._seq = 0
+        self._closing = False
         self._socket: socket.socket | None = None
         if path is not None:
             self._socket = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM | socket.SOCK_CLOEXEC)
@@ -98,11 +104,17 @@ class HeartbeatSender:
 
     def beat(self) -> bool:
         """After a completed tick; True when this call sent a heartbeat."""
-        if self._socket is None:
+        if self._socket is None or self._closing:
             return False
         due = self._ticks % self.every_ticks == 0  # the first completed tick sends at once
         self._ticks += 1
         return self._send(BeatKind.BEAT) if due else False
+
+    def closing(self) -> None:
+        """The loop has ended in order: no more heartbeats, the device is being closed."""
+        if self._socket is not None and not self._closing:
+            self._closing = True
+            self._send(BeatKind.CLOSING)
 
     def close(self) -> None:
         """The run ended in order (the arm held, the device closed): say so, then close."""
