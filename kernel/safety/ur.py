@@ -62,7 +62,6 @@ class URWatch:
         return cls(host, settings.device_timeout_ms / 1e3)
 
     def connect(self) -> None:
-        _reachable(self.host, RTDE_PORT, "RTDE server", CONNECT_TIMEOUT_S)
         try:
             self.dashboard.connect()
             remote = self.dashboard.ask("is in remote control")
@@ -75,6 +74,7 @@ class URWatch:
                 f"the controller at {self.host} is not in remote control ({remote!r}): its "
                 "dashboard server may refuse 'stop', and a stop path that may be refused is no "
                 "stop path; switch the arm to Remote Control on the teach pendant")
+        _reachable(self.host, RTDE_PORT, "RTDE server", CONNECT_TIMEOUT_S)
         self._open_receive()
 
     def _open_receive(self) -> None:
