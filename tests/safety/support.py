@@ -9,7 +9,6 @@ sockets live in the test's directory.
 from __future__ import annotations
 
 import json
-import re
 import signal
 import socket
 import subprocess
@@ -56,16 +55,16 @@ def sim_manifest(tmp: Path, port: int, name: str = "cell.toml", **safety: Any) -
     return path
 
 
-def tighten_joint0(manifest: Path, lower: float, name: str) -> Path:
-    """A copy whose joint 0 may not go below ``lower``: a limit inside the cell's first move
-    (joint 0 turns from 0 to about -0.57 rad toward the part)."""
+def with_shoulder_limit(manifest: Path, upper: float, name: str) -> Path:
+    """A copy whose joint 1 (shoulder lift) may not rise above ``upper``: a limit inside the
+    cell's transport move (joint 1 starts at -1.571, dips to -1.75 at the part, then rises
+    through -1.5 toward -1.37 on the way to the hole, about 2.8 s into the cycle)."""
+    old = "position_limits = [[-6.2832, 6.2832], [-6.2832, 6.2832],"
     text = manifest.read_text()
-    text, count = re.subn(r"position_limits = \[\[-6\.2832, 6\.2832\]",
-                          f"position_limits = [[{lower}, 6.2832]", text, count=1)
-    if count != 1:
-        raise AssertionError("joint 0's position limit not found in the manifest")
+    if text.count(old) != 1:
+        raise AssertionError("the manifest's position limits are not the shipped ones")
     path = manifest.with_name(name)
-    path.write_text(text)
+    path.write_text(text.replace(old, f"position_limits = [[-6.2832, 6.2832], [-6.2832, {upper}],"))
     return path
 
 
