@@ -43,9 +43,9 @@ V_MAX = 3.1416
 STOPPED, AT_REST = 1, 0.01
 UR_DEVICE_TIMEOUT_MS = 1000.0
 SHOULDER_LIMIT, MARGIN_RAD = -1.5, 0.02
-MUJOCO_STOPPING_S = 0.6
-"""The MuJoCo arm's stop under a held position (its servo rings down from the transport speed):
-0.2-0.35 s measured here; the bound allows more."""
+MUJOCO_STOPPING_S = 0.3
+"""The MuJoCo arm's stop under the brake (its position servo holds where the brake caught it),
+from about 0.9 rad/s: 69-75 ms from the crossing measured here; the bound allows 0.3 s."""
 
 
 @pytest.fixture
