@@ -10,8 +10,8 @@ output period and applies every data package the client sends to the registers.
 Sessions are independent, as on the controller: any number of clients read at once (warden's
 driver, and the safety monitor's own receive session), and one that stops reading (a stopped
 process) never holds back the controller's cycle or another client. The cycle only queues each
-session's data package; the session's own writer thread sends it, and a full queue drops the
-package for that session alone.
+session's data package; the session's own writer thread sends it, and a full queue drops that
+session's oldest package (a client catching up wants the newest data).
 """
 
 from __future__ import annotations
@@ -47,7 +47,7 @@ HEADER = struct.Struct(">HB")
 PROTOCOL_VERSION = 2
 SEND_TIMEOUT_S = 1.0
 OUTBOX_PACKAGES = 64
-"""Data packages a session may have waiting (128 ms at 500 Hz) before new ones are dropped."""
+"""Data packages a session may have waiting (128 ms at 500 Hz) before the oldest are dropped."""
 _WRITER_POLL_S = 0.1
 
 
@@ -145,10 +145,15 @@ class RTDESession:
         """Queue this cycle's package (never blocks the controller's cycle)."""
         recipe = self.outputs
         if recipe is not None and cycle % recipe.every_n_cycles == 0:
+            package = recipe.pack(frame)
             try:
-                self._outbox.put_nowait(recipe.pack(frame))
-            except queue.Full:
+                self._outbox.put_nowait(package)
+            except queue.Full:  # the client is not reading: its oldest package goes
                 self.dropped += 1
+                with contextlib.suppress(queue.Empty):
+                    self._outbox.get_nowait()
+                with contextlib.suppress(queue.Full):
+                    self._outbox.put_nowait(package)
 
     def _write_data(self) -> None:
         while not self._closed:
