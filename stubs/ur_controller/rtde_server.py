@@ -9,16 +9,17 @@ output period and applies every data package the client sends to the registers.
 
 Sessions are independent, as on the controller: any number of clients read at once (warden's
 driver, and the safety monitor's own receive session), and one that stops reading (a stopped
-process) never holds back the controller's cycle or another client. The cycle only queues each
-session's data package; the session's own writer thread sends it, and a full queue drops that
-session's oldest package (a client catching up wants the newest data).
+process) never holds back the controller's cycle or another client. The cycle sends each
+session's data package without waiting: what the client's socket cannot take yet waits in that
+session's own buffer, and while that holds more than :data:`BACKLOG_PACKAGES` packages, new
+ones are dropped for that session alone.
 """
 
 from __future__ import annotations
 
 import contextlib
 import itertools
-import queue
+import select
 import socket
 import struct
 import sys
@@ -46,9 +47,8 @@ from stubs.ur_controller.watchdog import RTDEWatchdogs
 HEADER = struct.Struct(">HB")
 PROTOCOL_VERSION = 2
 SEND_TIMEOUT_S = 1.0
-OUTBOX_PACKAGES = 64
-"""Data packages a session may have waiting (128 ms at 500 Hz) before the oldest are dropped."""
-_WRITER_POLL_S = 0.1
+BACKLOG_PACKAGES = 64
+"""Data packages a session may have waiting for its client (128 ms at 500 Hz)."""
 
 
 class Message(IntEnum):
@@ -114,9 +114,12 @@ class RTDESession:
         self._on_close = on_close
         self._send_lock = threading.Lock()
         self._closed = False
-        self._outbox: queue.Queue[bytes] = queue.Queue(maxsize=OUTBOX_PACKAGES)
+        self._backlog = b""
+        """Bytes the client's socket has not taken yet, whole messages only at its end."""
         self.dropped = 0
         """Data packages dropped because this client did not read them in time."""
+        self._writable = select.poll()
+        self._writable.register(sock, select.POLLOUT)
         self._handlers: dict[int, Callable[[bytes], None]] = {
             Message.REQUEST_PROTOCOL_VERSION: self._negotiate,
             Message.GET_URCONTROL_VERSION: self._send_version,
@@ -131,7 +134,6 @@ class RTDESession:
         sock.settimeout(SEND_TIMEOUT_S)
 
     def serve(self) -> None:
-        threading.Thread(target=self._write_data, name="rtde-writer", daemon=True).start()
         try:
             while True:
                 kind, payload = self._read_message()
@@ -142,30 +144,21 @@ class RTDESession:
             self.close()
 
     def send_data(self, frame: Frame, cycle: int) -> None:
-        """Queue this cycle's package (never blocks the controller's cycle)."""
+        """This cycle's package, sent without waiting for a client that does not read."""
         recipe = self.outputs
-        if recipe is not None and cycle % recipe.every_n_cycles == 0:
-            package = recipe.pack(frame)
-            try:
-                self._outbox.put_nowait(package)
-            except queue.Full:  # the client is not reading: its oldest package goes
-                self.dropped += 1
-                with contextlib.suppress(queue.Empty):
-                    self._outbox.get_nowait()
-                with contextlib.suppress(queue.Full):
-                    self._outbox.put_nowait(package)
-
-    def _write_data(self) -> None:
-        while not self._closed:
-            try:
-                package = self._outbox.get(timeout=_WRITER_POLL_S)
-            except queue.Empty:
-                continue
-            try:
-                self._send(Message.DATA_PACKAGE, package)
-            except OSError:
-                self.close()  # a client that cannot take data for a second is gone
+        if recipe is None or cycle % recipe.every_n_cycles:
+            return
+        package = recipe.pack(frame)
+        message = HEADER.pack(HEADER.size + len(package), Message.DATA_PACKAGE) + package
+        with self._send_lock:
+            if self._closed:
                 return
+            if len(self._backlog) > BACKLOG_PACKAGES * len(message):
+                self.dropped += 1
+                return
+            self._backlog += message
+            if self._writable.poll(0):  # send what fits now; the rest waits for next cycle
+                self._backlog = self._backlog[self.sock.send(self._backlog):]
 
     def close(self) -> None:
         with self._send_lock:
@@ -269,10 +262,12 @@ class RTDESession:
             self.context.io.apply(recipe.names, values)
 
     def _send(self, kind: int, payload: bytes) -> None:
+        """An answer: it must arrive (after any data still waiting), within the send timeout."""
         message = HEADER.pack(HEADER.size + len(payload), kind) + payload
         with self._send_lock:
             if not self._closed:
-                self.sock.sendall(message)
+                backlog, self._backlog = self._backlog + message, b""
+                self.sock.sendall(backlog)
 
 
 def _names(payload: bytes) -> list[str]:
