@@ -67,6 +67,9 @@ class Monitor:
         self._device_problem: str | None = None
         self._stop_path_problem: str | None = None
         self._next_probe_ns = self._next_reconnect_ns = 0
+        self._judge_motion_from_ns = clock() + settings.heartbeat_timeout_ns
+        """A monitor (re)started while warden runs has not had its heartbeat yet: motion
+        without one is judged only once a heartbeat would have arrived."""
 
     # -- the loop -----------------------------------------------------------------------------
 
@@ -130,7 +133,8 @@ class Monitor:
             return [Finding(Breach.HEARTBEAT_LOST, f"no heartbeat from warden (pid "
                             f"{current.pid}) for {self.heartbeat.age_ms(now):.0f} ms (timeout "
                             f"{self.settings.heartbeat_timeout_ms:g} ms)")]
-        if pulse is Pulse.NONE and sample is not None and sample.fastest > self._moving:
+        if pulse is Pulse.NONE and sample is not None and sample.fastest > self._moving and (
+                now >= self._judge_motion_from_ns):
             return [Finding(Breach.MOTION_WITHOUT_WARDEN,
                             f"a joint moves at {sample.fastest:.3f} rad/s and no warden run is "
                             "heartbeating")]

@@ -118,8 +118,10 @@ def test_a_breach_that_persists_while_the_arm_moves_is_stopped_again(
     watch = ScriptedWatch()
     monitor = _monitor(watch, receiver, clock)
     watch.reading = Sample(q=(1.2,), qd=(0.5,), force_n=0.0)
+    _beat(receiver, clock, 0)  # warden alive all along: the only breach is the position
     monitor.check()
     clock.advance(SETTINGS.restop_interval_ms - 1)
+    _beat(receiver, clock, 1)
     monitor.check()
     assert watch.stops == 1
     clock.advance(1)
@@ -160,6 +162,31 @@ def test_an_orderly_end_is_not_a_loss_but_motion_after_it_is(
     assert watch.stops == 1
     assert monitor.status()["last_stop"]["violations"] == [
         "motion_without_warden: a joint moves at 0.300 rad/s and no warden run is heartbeating"]
+
+
+def test_a_monitor_started_mid_motion_waits_one_timeout_for_wardens_heartbeat(
+        receiver: HeartbeatReceiver, clock: Clock) -> None:
+    watch = ScriptedWatch()
+    watch.reading = Sample(q=(0.1,), qd=(0.3,), force_n=0.0)
+    monitor = _monitor(watch, receiver, clock)  # (re)started while warden moves the arm
+    monitor.check()
+    clock.advance(SETTINGS.heartbeat_timeout_ms - 10)
+    _beat(receiver, clock, 0)
+    monitor.check()
+    clock.advance(100)
+    monitor.check()
+    assert watch.stops == 0 and monitor.status()["heartbeat"]["state"] == "alive"
+
+
+def test_motion_with_no_warden_at_all_is_stopped_after_one_timeout(
+        receiver: HeartbeatReceiver, clock: Clock) -> None:
+    watch = ScriptedWatch()
+    watch.reading = Sample(q=(0.1,), qd=(0.3,), force_n=0.0)
+    monitor = _monitor(watch, receiver, clock)
+    monitor.check()
+    clock.advance(SETTINGS.heartbeat_timeout_ms)
+    monitor.check()
+    assert watch.stops == 1
 
 
 def test_a_run_that_never_finishes_closing_is_lost(receiver: HeartbeatReceiver,
