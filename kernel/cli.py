@@ -23,6 +23,7 @@ from drivers.base import DriverError
 from kernel import signing
 from kernel.cli_operator import add_commands as add_operator_commands
 from kernel.cli_run import add_commands
+from kernel.cli_safety import add_commands as add_safety_commands
 from kernel.cli_trial import add_commands as add_trial_commands
 from kernel.core.lines import encode
 from kernel.replay import Replay, as_dict, check_expectations
@@ -67,6 +68,7 @@ def _parser() -> argparse.ArgumentParser:
     add_commands(commands)
     add_operator_commands(commands)
     add_trial_commands(commands)
+    add_safety_commands(commands)
     signing.add_commands(commands)
     return parser
 

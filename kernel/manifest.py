@@ -22,6 +22,7 @@ from typing import Any
 from assurance.clock import ms_to_ns, ns_to_ms
 from drivers.settings import SettingsError, settings_from_mapping
 from kernel.core.config import CoreConfig
+from kernel.safety.settings import SafetySettings, check_against_period
 from kernel.scenario import bounds
 from kernel.scenario.config import build_config, check_keys
 from kernel.scenario.document import check_document, decoded, read_bytes
@@ -73,10 +74,14 @@ class Manifest:
     """SHA-256 of the exact bytes that were parsed (the journal records it)."""
     signer: str | None = None
     """The key id that verified those bytes, when a signature was checked before parsing."""
+    safety: SafetySettings | None = None
+    """``[safety]``: the independent safety monitor and warden's heartbeat to it (None: no
+    such table, warden sends no heartbeat and the monitor refuses the manifest)."""
 
 
 _TOP_KEYS = frozenset({"name", "description", "cell", "driver", "emulator", "policy",
-                       "journal", "task", "operator", "trial", *SCENARIO_SECTIONS})
+                       "journal", "task", "operator", "trial", "safety",
+                       *SCENARIO_SECTIONS})
 
 
 def load_manifest(path: str | Path, content: bytes | None = None,
@@ -128,6 +133,7 @@ def _load(path: Path, raw: str) -> Manifest:
         policy=policy, journal=_settings(JournalSettings, doc, "journal", where),
         task=dict(_table(doc, "task", where)),
         operator=_settings(OperatorSettings, doc, "operator", where),
+        safety=_safety(doc, where, core.control_period_ns),
         trial=_trial(doc, where),
     )
 
@@ -278,6 +284,16 @@ def _policy(settings: PolicySettings, where: Where) -> PolicySettings:
                                      "false; 0 picks a free port only for a launched server")
     if not settings.host.strip():
         raise where.at("host").error("must not be empty")
+    return settings
+
+
+def _safety(doc: Mapping[str, Any], where: Where, period_ns: int) -> SafetySettings | None:
+    if "safety" not in doc:
+        return None
+    settings: SafetySettings = _settings(SafetySettings, doc, "safety", where)
+    problem = check_against_period(settings, period_ns)
+    if problem:
+        raise ManifestError(f"{where.file}: safety.heartbeat_timeout_ms: {problem}")
     return settings
 
 

@@ -27,6 +27,7 @@ from kernel.app.session import RunContext, bring_up, finish, open_run, report_pr
 from kernel.core.events import LinkEvent, LinkStatus
 from kernel.manifest import Manifest, PolicySettings
 from kernel.shell.client import RobotClient
+from kernel.shell.heartbeat import HeartbeatSender
 from kernel.shell.link_budget import AdmissionPacer
 from kernel.shell.link_types import ClientConfig
 from kernel.shell.operator import OperatorServer
@@ -62,6 +63,7 @@ async def run_live(manifest: Manifest, journal_dir: Path | None,
     service = ServiceNotifier.from_env()
     failures: list[str] = []
     loop = _Loop(context, progress, hook, service, realtime.summary())
+    loop.heartbeat = _heartbeat(manifest)
     client: RobotClient | None = None
     try:
         # A stop requested during start-up (device bring-up, policy server start) is kept and
@@ -81,6 +83,7 @@ async def run_live(manifest: Manifest, journal_dir: Path | None,
     finally:
         service.stopping("holding the arm and closing the device")
         await context.cell.driver.aclose()
+        loop.heartbeat.close()  # END only now: the arm is held and the device closed
         context.cell.world.close()
         worker.close()
         gc.unfreeze()  # let the collector see the run's objects again before the process ends
@@ -96,7 +99,7 @@ async def run_live(manifest: Manifest, journal_dir: Path | None,
         "task_failures": failures, "loop": {"realtime": realtime.summary()},
         "link": {k: v for k, v in client.counters.snapshot().items() if v} if client else {},
         "jobs": {"done": worker.done, "failed": worker.failed},
-        "operator": _operator_summary(operator),
+        "operator": _operator_summary(operator), "safety": loop.heartbeat.summary(),
         "service": {"notify": service.enabled, "sent": service.stats.sent,
                     "failed": service.stats.failed},
     })
@@ -152,6 +155,7 @@ class _Loop:
         self.context, self.progress, self.hook = context, progress, hook
         self.service, self.scheduling = service, scheduling
         self.stop_requested = False
+        self.heartbeat = HeartbeatSender(None)
         self._status = ""
         period = context.cell.core.config.control_period_ns
         self.pacer = AdmissionPacer(context.manifest.policy.admissions_per_period, period // 2)
@@ -171,9 +175,11 @@ class _Loop:
                 await cell.controller.tick()
                 self.pacer.period_done(tick.deadline_ns + period)
                 self.service.alive()  # only a loop that completes its ticks feeds the watchdog
+                self.heartbeat.beat()  # ... and the safety monitor's heartbeat
                 self._report()
                 if self.hook is not None and self.hook(self.context):
                     break
+        self.heartbeat.closing()  # ended in order (an error skips this: the monitor stops)
 
     def _report(self) -> None:
         report_progress(self.context, self.progress)
@@ -223,6 +229,13 @@ async def _supervise(context: RunContext, client: RobotClient, worker: JobWorker
         await done.wait()
         client.stop()
         await supervisor.shutdown()
+
+
+def _heartbeat(manifest: Manifest) -> HeartbeatSender:
+    safety = manifest.safety
+    if safety is None:
+        return HeartbeatSender(None)
+    return HeartbeatSender(safety.heartbeat_path, safety.heartbeat_periods)
 
 
 def _operator_summary(operator: OperatorServer | None) -> dict[str, Any]:

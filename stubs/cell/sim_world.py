@@ -3,16 +3,29 @@
 The world steps the physics one control period per tick (the plant runs in lockstep with the
 control loop, whichever clock paces that loop) and tells what only a simulation can: the
 ground truth the evaluator reads, and a parts feeder.
+
+With ``[safety] sim_port`` set, the world also serves a test-only control port on loopback for
+the independent safety monitor (``warden safety``): the plant's ground truth (joints, speeds,
+wrist wrench) and a brake that holds the joints where they are and ignores every later joint
+command (:mod:`stubs.plant.brake`). It runs on its own thread in warden's process; the plant
+itself still moves only when warden's loop steps it.
 """
 
 from __future__ import annotations
 
 import threading
+from typing import Any
 
 from drivers.base import Driver
 from drivers.sim.driver import SimDriver
 from kernel.manifest import Manifest, ManifestError
+from stubs.fault_control import FaultControlServer
+from stubs.plant.brake import BrakedPlant
 from stubs.plant.mujoco_plant import MujocoPlant
+from stubs.plant.world_port import world_handlers
+
+CONTROL_HOST = "127.0.0.1"
+"""Loopback only: the control port has no authentication, it is test tooling."""
 
 
 def sim_world(manifest: Manifest) -> SimWorld:
@@ -21,7 +34,12 @@ def sim_world(manifest: Manifest) -> SimWorld:
         key = next(iter(manifest.driver_settings))
         raise ManifestError(f"{manifest.path}: driver.{key}: unknown key (the sim driver "
                             "takes no settings)")
-    return SimWorld(manifest.core.control_period_ns)
+    port = manifest.safety.sim_port if manifest.safety is not None else 0
+    try:
+        return SimWorld(manifest.core.control_period_ns, control_port=port)
+    except OSError as error:
+        raise ManifestError(f"{manifest.path}: safety.sim_port: cannot serve the simulated "
+                            f"world's control port on {CONTROL_HOST}:{port} ({error})") from None
 
 
 class SimWorld:
@@ -29,14 +47,20 @@ class SimWorld:
 
     has_ground_truth = True
 
-    def __init__(self, period_ns: int, plant: MujocoPlant | None = None) -> None:
+    def __init__(self, period_ns: int, plant: MujocoPlant | None = None,
+                 control_port: int = 0) -> None:
         self.plant = plant or MujocoPlant()
         if period_ns % self.plant.timestep_ns:
             raise ValueError(f"control period {period_ns} ns is not a multiple of the plant's "
                              f"{self.plant.timestep_ns} ns step")
         self._steps = period_ns // self.plant.timestep_ns
         self._lock = threading.Lock()
-        self._driver = SimDriver(self.plant, lock=self._lock)
+        self.brake = BrakedPlant(self.plant)
+        self._driver = SimDriver(self.brake, lock=self._lock)  # type: ignore[arg-type]
+        self.control: FaultControlServer | None = None
+        if control_port:
+            self.control = FaultControlServer(CONTROL_HOST, control_port,
+                                              self._handlers()).start()
 
     def driver(self) -> Driver:
         return self._driver
@@ -54,4 +78,20 @@ class SimWorld:
             self.plant.respawn_peg()
 
     def close(self) -> None:
-        """Nothing to release: the plant lives and dies with the process."""
+        """Stop the control port; the plant lives and dies with the process."""
+        if self.control is not None:
+            self.control.stop()
+            self.control = None
+
+    def _handlers(self) -> dict[str, Any]:
+        def brake(_: dict[str, Any]) -> dict[str, Any]:
+            with self._lock:
+                self.brake.engage()
+            return {"engaged": True}
+
+        def brake_state(_: dict[str, Any]) -> dict[str, Any]:
+            with self._lock:
+                return {"engaged": self.brake.engaged, "ignored": self.brake.ignored}
+
+        return {**world_handlers(self.plant, self._lock), "brake": brake,
+                "brake_state": brake_state}

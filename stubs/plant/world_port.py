@@ -2,8 +2,8 @@
 
 An emulator process owns its plant; the cell's independent evaluator and its parts feeder are
 not part of any robot's wire protocol, so they go over the emulator's test-only control port:
-``ground_truth`` answers the insertion depth and the joints' true position and velocity,
-``feed_peg`` presents a new peg.
+``ground_truth`` answers the insertion depth, the joints' true position and velocity and the
+wrist wrench, ``feed_peg`` presents a new peg.
 """
 
 from __future__ import annotations
@@ -23,7 +23,8 @@ def world_handlers(plant: Plant, lock: AbstractContextManager[Any] | threading.L
             truth = plant.ground_truth()
             state = plant.state()
         return {"insertion_depth": truth.insertion_depth, "peg_grasped": truth.peg_grasped,
-                "q": list(state.q), "qd": list(state.qd), "t_ns": state.t_ns}
+                "q": list(state.q), "qd": list(state.qd), "wrench": list(state.wrench),
+                "t_ns": state.t_ns}
 
     def feed_peg(_: dict[str, Any]) -> None:
         respawn = getattr(plant, "respawn_peg", None)

@@ -40,6 +40,7 @@ from stubs.ur_controller.watchdog import InputWatchdog, RTDEWatchdogs
 
 RTDE_PORT, DASHBOARD_PORT, SCRIPT_PORT = 30004, 29999, 30003
 CB3_MAJOR = 3
+STOP_ANSWER_TIMEOUT_S = 10.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -70,6 +71,8 @@ class URController:
         self.script = ControlScript(self.status, self.registers, plant,
                                     1.0 / config.cycle_hz, self.watchdogs)
         self.stalled = False
+        self.dashboard_stops = 0
+        """Program stops the dashboard's ``stop`` started (tests ask over the control port)."""
         self._sessions: set[RTDESession] = set()
         self._sessions_lock = threading.Lock()
         self._context = ServerContext(config.version, config.cycle_hz, self.registers, self.lock,
@@ -116,9 +119,14 @@ class URController:
                 self.script.stop()
 
     def stop_program(self) -> bool:
+        """The dashboard's ``stop``: answers once the arm has decelerated and the program has
+        ended (as the manual says from 3.3 on); stopping a stopped program succeeds too
+        (ur_rtde relies on it)."""
         with self._locked():
-            self.script.stop()
-        return True  # stopping a stopped program succeeds too (ur_rtde relies on it)
+            stopping = self.script.stop_decelerating()
+            if stopping is not None:
+                self.dashboard_stops += 1
+        return stopping is None or stopping.done.wait(STOP_ANSWER_TIMEOUT_S)
 
     def unlock_protective_stop(self) -> bool:
         with self._locked():
@@ -161,7 +169,8 @@ class URController:
             return {"robot_mode": int(status.robot_mode), "safety_bits": status.safety_bits,
                     "runtime_state": int(status.runtime_state),
                     "robot_status_bits": status.robot_status_bits,
-                    "watchdogs": self.watchdogs.snapshot()}
+                    "watchdogs": self.watchdogs.snapshot(),
+                    "dashboard_stops": self.dashboard_stops}
 
     def _safety_stop(self, mode: SafetyMode, bits: tuple[SafetyBit, ...]) -> None:
         # As on the real controller: the program leaves PLAYING, so ur_rtde's commands fail.

@@ -2,8 +2,10 @@
 
 Dashboard: one welcome line, then one answer line per command line, with the texts of the UR
 dashboard server manual for the commands ur_rtde sends ("PolyscopeVersion", "get serial
-number", "is in remote control", "stop", ...). Script port: URScript programs arrive as text
-("def name(): ... end"); a complete ``rtde_control`` program starts the control script.
+number", "is in remote control", "stop", ...); "stop" answers once the arm has decelerated and
+the program has ended (:mod:`stubs.ur_controller.program_stop`). Script port: URScript programs
+arrive as text ("def name(): ... end"); a complete ``rtde_control`` program starts the control
+script.
 """
 
 from __future__ import annotations

@@ -6,12 +6,20 @@ frequency and variable names; we answer the UR types, ``NOT_FOUND`` for unknown 
 number of input recipes (ids 1..N in setup order; ``IN_USE`` when another session already writes
 one of the variables), then starts. From then on the controller sends one data package per
 output period and applies every data package the client sends to the registers.
+
+Sessions are independent, as on the controller: any number of clients read at once (warden's
+driver, and the safety monitor's own receive session), and one that stops reading (a stopped
+process) never holds back the controller's cycle or another client. The cycle sends each
+session's data package without waiting: what the client's socket cannot take yet waits in that
+session's own buffer, and while that holds more than :data:`BACKLOG_PACKAGES` packages, new
+ones are dropped for that session alone.
 """
 
 from __future__ import annotations
 
 import contextlib
 import itertools
+import select
 import socket
 import struct
 import sys
@@ -39,6 +47,8 @@ from stubs.ur_controller.watchdog import RTDEWatchdogs
 HEADER = struct.Struct(">HB")
 PROTOCOL_VERSION = 2
 SEND_TIMEOUT_S = 1.0
+BACKLOG_PACKAGES = 64
+"""Data packages a session may have waiting for its client (128 ms at 500 Hz)."""
 
 
 class Message(IntEnum):
@@ -104,6 +114,12 @@ class RTDESession:
         self._on_close = on_close
         self._send_lock = threading.Lock()
         self._closed = False
+        self._backlog = b""
+        """Bytes the client's socket has not taken yet, whole messages only at its end."""
+        self.dropped = 0
+        """Data packages dropped because this client did not read them in time."""
+        self._writable = select.poll()
+        self._writable.register(sock, select.POLLOUT)
         self._handlers: dict[int, Callable[[bytes], None]] = {
             Message.REQUEST_PROTOCOL_VERSION: self._negotiate,
             Message.GET_URCONTROL_VERSION: self._send_version,
@@ -128,9 +144,21 @@ class RTDESession:
             self.close()
 
     def send_data(self, frame: Frame, cycle: int) -> None:
+        """This cycle's package, sent without waiting for a client that does not read."""
         recipe = self.outputs
-        if recipe is not None and cycle % recipe.every_n_cycles == 0:
-            self._send(Message.DATA_PACKAGE, recipe.pack(frame))
+        if recipe is None or cycle % recipe.every_n_cycles:
+            return
+        package = recipe.pack(frame)
+        message = HEADER.pack(HEADER.size + len(package), Message.DATA_PACKAGE) + package
+        with self._send_lock:
+            if self._closed:
+                return
+            if len(self._backlog) > BACKLOG_PACKAGES * len(message):
+                self.dropped += 1
+                return
+            self._backlog += message
+            if self._writable.poll(0):  # send what fits now; the rest waits for next cycle
+                self._backlog = self._backlog[self.sock.send(self._backlog):]
 
     def close(self) -> None:
         with self._send_lock:
@@ -214,8 +242,9 @@ class RTDESession:
         return kind.value
 
     def _start(self, _: bytes) -> None:
-        self.started = self.outputs is not None or bool(self.inputs)
-        self._send(Message.START, bytes([self.started]))
+        started = self.outputs is not None or bool(self.inputs)
+        self._send(Message.START, bytes([started]))
+        self.started = started  # after the answer: no data package may overtake it
 
     def _pause(self, _: bytes) -> None:
         self.started = False
@@ -233,10 +262,12 @@ class RTDESession:
             self.context.io.apply(recipe.names, values)
 
     def _send(self, kind: int, payload: bytes) -> None:
+        """An answer: it must arrive (after any data still waiting), within the send timeout."""
         message = HEADER.pack(HEADER.size + len(payload), kind) + payload
         with self._send_lock:
             if not self._closed:
-                self.sock.sendall(message)
+                backlog, self._backlog = self._backlog + message, b""
+                self.sock.sendall(backlog)
 
 
 def _names(payload: bytes) -> list[str]:

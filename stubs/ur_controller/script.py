@@ -9,7 +9,10 @@ registers. We do not interpret URScript; we run the same state machine that prog
 - real-time commands (servoJ 11, speedJ 9, ...) are processed every cycle and answer "ready";
 - every other command is processed once, answers "done", and waits for the client to write 0;
 - ``setWatchdog`` (35) arms the controller's RTDE watchdog on the command register with action
-  "stop" (:mod:`stubs.ur_controller.watchdog`); stopping the program removes it.
+  "stop" (:mod:`stubs.ur_controller.watchdog`); stopping the program removes it;
+- the dashboard's ``stop`` ends the program through STOPPING while the arm decelerates
+  (:mod:`stubs.ur_controller.program_stop`); the other stops (stop script, an RTDE watchdog, a
+  safety stop) still hold the arm at once.
 
 Registers are offset by 24 when the client asked for the upper range; the offset is read from
 the uploaded program text, where ur_rtde injects it.
@@ -24,6 +27,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from stubs.plant.base import Plant
+from stubs.ur_controller.program_stop import ProgramStop
 from stubs.ur_controller.status import ControllerStatus, RegisterBank, RuntimeState
 from stubs.ur_controller.watchdog import RTDEWatchdogs
 
@@ -66,6 +70,7 @@ class ControlScript:
         self.servo: dict[str, float] = {}
         """The last servoJ timing parameters (t, lookahead_time, gain), as the script keeps them."""
         self._servo_window: ServoLookahead | None = None
+        self._stopping: ProgramStop | None = None
         self._by_command: dict[int, Callable[[], None]] = {
             MOVEJ: self._move_j,
             SPEEDJ: lambda: self.plant.command_velocity(self._doubles(0, 6)),
@@ -80,6 +85,7 @@ class ControlScript:
 
     def load(self, program: str) -> None:
         """A new program replaces the running one and starts PLAYING (as on the controller)."""
+        self._end_stopping()  # a new program cuts a deceleration short, holding the arm
         self.offsets = parse_offsets(program)
         self.watchdogs.clear()  # the program it replaces has ended, and its watchdogs with it
         self._servo_window = None
@@ -95,12 +101,31 @@ class ControlScript:
         The arm stays powered and the safety system is not involved: robot mode RUNNING, safety
         NORMAL, runtime state STOPPED. The plant holds the measured position at once: a real
         controller decelerates along the path instead (not modelled)."""
+        self._end_stopping()
         self.status.runtime_state = RuntimeState.STOPPED
         self.watchdogs.clear()
         self._blocking_until = None
         self.plant.hold()
 
+    def stop_decelerating(self) -> ProgramStop | None:
+        """The dashboard's ``stop``: STOPPING while the arm decelerates, then STOPPED. Returns
+        the stop in progress (its ``done`` is set at rest), or None if no program runs."""
+        if self._stopping is not None:
+            return self._stopping
+        if not self.status.program_running:
+            return None
+        self.status.runtime_state = RuntimeState.STOPPING
+        self.watchdogs.clear()
+        self._blocking_until = None
+        self._stopping = ProgramStop(self.plant, self.cycle_s)
+        return self._stopping
+
     def step(self) -> None:
+        if self._stopping is not None:
+            if self._stopping.step():
+                self._stopping = None
+                self.status.runtime_state = RuntimeState.STOPPED
+            return
         if not self.status.program_running:
             return
         if self._blocking_until is not None:
@@ -118,6 +143,11 @@ class ControlScript:
             self._process(command)
             if self._blocking_until is None:
                 self._signal_done(command)
+
+    def _end_stopping(self) -> None:
+        if self._stopping is not None:
+            self._stopping.finish()
+            self._stopping = None
 
     def _finish_blocking_command(self) -> None:
         if self._blocking_until is not None and self._blocking_until():

@@ -1,0 +1,9 @@
+"""The independent safety monitor: ``warden safety MANIFEST`` (docs/operations.md, "Safety
+monitor").
+
+A process of its own, beside warden: its own connection to the device where the device allows
+a second one, its own stop path, its own checks of joints, speeds and wrist force against the
+manifest's limits, and warden's heartbeat. None of warden's core, gates, motion layer or
+drivers runs in it; it reads the manifest with warden's loader (the very limits warden was
+given).
+"""

@@ -1,0 +1,151 @@
+"""``warden safety MANIFEST``: bring the monitor up, run it until SIGTERM, take it down.
+
+Start-up refuses (exit 2, one line naming the key or the device and what to check) before any
+stop could be sent: a manifest without ``[safety]``, a device the monitor has no watch for, a
+missing force limit where the wrist sensor is read, a socket another monitor holds, a device
+that does not answer. Only then does the monitor tell systemd it is ready (``READY=1``), so a
+unit ordered after it starts on a monitor that is already watching.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import grp
+import os
+import signal
+import threading
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+import structlog
+
+from kernel.manifest import Manifest, ManifestError, load_manifest
+from kernel.safety.checks import Limits
+from kernel.safety.devices import DeviceUnreachable, DeviceWatch, watch_for
+from kernel.safety.heartbeat import HeartbeatReceiver
+from kernel.safety.monitor import Monitor
+from kernel.safety.settings import SafetySettings
+from kernel.safety.status import StatusServer
+from kernel.shell.realtime import restore, try_realtime
+from kernel.shell.systemd import ServiceNotifier
+
+log = structlog.get_logger("warden.safety")
+PRIORITY = 60
+"""SCHED_FIFO priority of the monitor's loop: above warden's loop (50), so a warden loop that
+spins at real-time priority cannot starve the process that watches it."""
+FORCE_READ_BY = frozenset({"ur_rtde", "sim"})
+
+
+class StartError(Exception):
+    """The monitor cannot start; the message says why and what to check (exit 2)."""
+
+
+@dataclass(frozen=True, slots=True)
+class Plan:
+    manifest: Manifest
+    settings: SafetySettings
+    limits: Limits
+    gid: int
+
+
+def plan(path: str) -> Plan:
+    """The manifest, checked for everything the monitor needs.
+
+    Raises:
+        StartError: what is missing or wrong, naming the file and the key.
+    """
+    try:
+        manifest = load_manifest(path)
+    except ManifestError as error:
+        raise StartError(str(error)) from None
+    settings = manifest.safety
+    if settings is None:
+        raise StartError(f"{manifest.path}: safety: no [safety] table; the monitor needs at "
+                         "least safety.max_wrist_force_n (docs/manifest.md, '[safety]')")
+    if manifest.driver_name in FORCE_READ_BY and settings.max_wrist_force_n is None:
+        raise StartError(f"{manifest.path}: safety.max_wrist_force_n: required key is missing "
+                         f"(the monitor reads the {manifest.driver_name} wrist sensor and needs "
+                         "a limit somebody chose)")
+    group = settings.group or grp.getgrgid(os.getegid()).gr_name
+    try:
+        gid = grp.getgrnam(group).gr_gid
+    except KeyError:
+        raise StartError(f"{manifest.path}: safety.group: no group {group!r} on this "
+                         "host") from None
+    return Plan(manifest, settings, Limits.from_manifest(manifest, settings), gid)
+
+
+def serve(path: str) -> None:
+    """Run the monitor until SIGTERM or SIGINT.
+
+    Raises:
+        StartError: it could not start (nothing was commanded).
+    """
+    chosen = plan(path)
+    settings = chosen.settings
+    with contextlib.ExitStack() as stack:
+        heartbeat = _bound(lambda: HeartbeatReceiver(
+            settings.heartbeat_path, chosen.gid, settings.heartbeat_timeout_ns,
+            settings.closing_timeout_ns), "heartbeat")
+        stack.callback(heartbeat.close)
+        watch = _connected(chosen)
+        stack.callback(watch.close)
+        monitor = Monitor(settings, chosen.limits, watch, heartbeat)
+        status = _bound(lambda: StatusServer(settings.status_path, chosen.gid, monitor.status),
+                        "status")
+        stack.callback(status.close)
+        _watch(chosen, monitor, status)
+
+
+def _watch(chosen: Plan, monitor: Monitor, status: StatusServer) -> None:
+    watch, settings = monitor.watch, chosen.settings
+    realtime = try_realtime(PRIORITY)
+    service = ServiceNotifier.from_env()
+    stopping = threading.Event()
+    try:
+        with _stop_on_signals(stopping):
+            monitor.check()  # one full check before anyone is told the monitor watches
+            status.start()
+            log.info("safety monitor watching", manifest=str(chosen.manifest.path),
+                     device=watch.description, stop_path=watch.stop_path,
+                     heartbeat=str(settings.heartbeat_path), status=str(settings.status_path),
+                     timeout_ms=settings.heartbeat_timeout_ms, scheduling=realtime.summary())
+            service.ready(f"watching {watch.description}")
+            monitor.run(stopping, service.alive)
+    finally:
+        service.stopping("safety monitor stopping")
+        service.close()
+        restore(realtime)
+    log.info("safety monitor stopped", checks=monitor.checks, stops=monitor.stop_count)
+
+
+def _bound(make, what: str):  # type: ignore[no-untyped-def]
+    try:
+        return make()
+    except OSError as error:
+        raise StartError(f"cannot serve the {what} socket: {error} (safety.{what}_socket; "
+                         "systemd's RuntimeDirectory= makes its directory)") from None
+
+
+def _connected(chosen: Plan) -> DeviceWatch:
+    try:
+        watch = watch_for(chosen.manifest, chosen.settings)
+    except DeviceUnreachable as error:
+        raise StartError(f"cannot watch the device: {error}") from None
+    try:
+        watch.connect()
+    except DeviceUnreachable as error:
+        watch.close()  # half open (the dashboard, not RTDE): nothing was sent on it
+        raise StartError(f"cannot watch the device: {error}") from None
+    return watch
+
+
+@contextlib.contextmanager
+def _stop_on_signals(stopping: threading.Event) -> Iterator[None]:
+    previous = {signum: signal.signal(signum, lambda *_: stopping.set())
+                for signum in (signal.SIGTERM, signal.SIGINT)}
+    try:
+        yield
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
