@@ -18,7 +18,7 @@ from typing import Any
 
 import structlog
 
-from kernel.app.trial import TrialBound, load_trial, trial_card, verdict
+from kernel.app.trial import TrialBound, load_trial, safety_watching, trial_card, verdict
 from kernel.cli_run import configure_logging, output, preflight, run_wall
 from kernel.manifest import Manifest, ManifestError
 from kernel.shell.operator import await_confirmation, socket_path
@@ -57,18 +57,20 @@ def trial_command(args: argparse.Namespace) -> int:
         manifest.journal.enabled) else None
     socket = socket_path(manifest.operator.socket)
     print(trial_card(manifest, socket, safety, journal), file=sys.stderr)
-    _confirmed(manifest, socket, args.confirm_timeout)
+    confirmed_by = _confirmed(manifest, socket, args.confirm_timeout)
     bound = TrialBound(manifest.trial.max_duration_s if manifest.trial else 0.0)
     summary = run_wall(manifest, journal, bound)
     code, why = verdict(summary, bound)
-    summary["trial"] = {"ended": why, "signer": manifest.signer, "digest": manifest.digest}
+    summary["trial"] = {"ended": why, "signer": manifest.signer, "digest": manifest.digest,
+                        "confirmed_by_uid": confirmed_by}
     output(summary, args.json_out)
     print(f"warden: trial {manifest.name}: {why}", file=sys.stderr)
     return code
 
 
-def _confirmed(manifest: Manifest, socket: Path, timeout_s: float) -> None:
-    """A human says go: typing the run's name at the terminal, or `warden operator confirm`.
+def _confirmed(manifest: Manifest, socket: Path, timeout_s: float) -> int:
+    """A human says go: typing the run's name at the terminal, or `warden operator confirm`;
+    the uid of who confirmed (the kernel's, SO_PEERCRED, for the socket).
 
     Raises:
         ManifestError: nobody confirmed (the trial does not start; nothing moved).
@@ -78,26 +80,16 @@ def _confirmed(manifest: Manifest, socket: Path, timeout_s: float) -> None:
         if typed.strip() != manifest.name:
             raise ManifestError(f"{manifest.path}: trial: not confirmed at the terminal")
         log.info("trial confirmed", run=manifest.name, uid=os.getuid(), via="terminal")
-        return
+        return os.getuid()
     group = manifest.operator.group or grp.getgrgid(os.getegid()).gr_name
     print(f"waiting {timeout_s:g} s for `warden operator confirm --socket {socket}`",
           file=sys.stderr)
     try:
-        asyncio.run(await_confirmation(socket, group, manifest.name, timeout_s))
+        caller = asyncio.run(await_confirmation(socket, group, manifest.name, timeout_s))
     except TimeoutError:
         raise ManifestError(f"{manifest.path}: trial: nobody confirmed within {timeout_s:g} s "
                             f"(warden operator confirm --socket {socket})") from None
     except (OSError, KeyError) as error:
         raise ManifestError(f"{manifest.path}: operator.socket: cannot wait for a confirmation "
                             f"at {socket}: {error}") from None
-
-
-def safety_watching(manifest: Manifest) -> str:
-    """What the independent safety monitor watches, for the card.
-
-    Raises:
-        ManifestError: it is not alive, connected and watching this cell.
-    """
-    from kernel.safety.status import require_watching
-
-    return require_watching(manifest)
+    return caller.uid

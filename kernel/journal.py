@@ -45,7 +45,7 @@ from kernel.core.events import (
 )
 
 JOURNAL_FORMAT = "warden-journal/1"
-HEADER_SECTIONS = ("robot", "timing", "phases", "session", "allowlist", "motion")
+HEADER_SECTIONS = ("robot", "timing", "phases", "session", "allowlist", "motion", "envelope")
 
 
 def header(sections: Mapping[str, Any], name: str) -> dict[str, Any]:

@@ -64,6 +64,7 @@ async def run_live(manifest: Manifest, journal_dir: Path | None,
     failures: list[str] = []
     loop = _Loop(context, progress, hook, service, realtime.summary())
     loop.heartbeat = _heartbeat(manifest)
+    context.heartbeat = loop.heartbeat.stats if loop.heartbeat.enabled else None
     client: RobotClient | None = None
     try:
         # A stop requested during start-up (device bring-up, policy server start) is kept and

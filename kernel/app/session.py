@@ -18,6 +18,7 @@ from kernel.app.report import CycleProgress
 from kernel.journal import header
 from kernel.manifest import Manifest
 from kernel.provenance import provenance
+from kernel.shell.heartbeat import HeartbeatStats
 from kernel.shell.recorder import Recorder, open_run_files
 from kernel.shell.timer import Clock
 from kernel.summary import CycleResult, RunSummary, percentiles
@@ -46,6 +47,8 @@ class RunContext:
     summary: RunSummary = field(default_factory=RunSummary)
     lateness_ns: list[int] = field(default_factory=list)
     misses: int = 0
+    heartbeat: HeartbeatStats | None = None
+    """The safety monitor's heartbeat as sent so far (a live run with ``[safety]``)."""
 
 
 def open_run(manifest: Manifest, clock: Clock, journal_dir: Path | None,

@@ -19,7 +19,6 @@ that signed it, the software revision and the host.
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -28,6 +27,7 @@ from assurance.reasons import ReasonCode
 from kernel import signing
 from kernel.app.session import RunContext
 from kernel.manifest import Manifest, ManifestError, TrialEnvelope, load_manifest
+from kernel.safety.status import ask
 from kernel.scenario.config import build_config
 from kernel.scenario.fields import ScenarioError, Where
 
@@ -125,6 +125,9 @@ class TrialBound:
         state = context.cell.core.state
         if state.fallback.cause is ReasonCode.ENVELOPE:
             self.reason = "the envelope was reached (ENVELOPE): the arm stopped"
+        elif context.heartbeat is not None and context.heartbeat.last_error is not None:
+            self.reason = (f"the safety monitor stopped taking warden's heartbeat "
+                           f"({context.heartbeat.last_error}): the trial is no longer watched")
         elif context.cell.gateway.now_ns() * 1e-9 >= self.duration_s:
             self.reason = f"the trial's duration is up ({self.duration_s:g} s)"
         return bool(self.reason)
@@ -140,7 +143,38 @@ def verdict(summary: dict[str, Any], bound: TrialBound) -> tuple[int, str]:
     return 1, f"ended: {cycles['verified']} of {cycles['attempted']} cycles verified"
 
 
-SafetyCheck = Callable[[Manifest], str]
-"""Answers what the safety monitor watches (shown on the card), or raises ManifestError when
-it is not alive, connected and watching."""
+def safety_watching(manifest: Manifest, timeout_s: float = 2.0) -> str:
+    """Asks the independent safety monitor, live, whether it watches this very cell; what it
+    watches and how it stops the arm, for the card.
+
+    Raises:
+        ManifestError: no ``[safety]`` table; no monitor answers; it is not alive, connected
+            and watching; it watches another manifest (another digest: other limits); or it
+            cannot stop the arm (a trial needs a stop layer outside warden besides the
+            device's own watchdog).
+    """
+    settings = manifest.safety
+    where = f"{manifest.path}: safety"
+    if settings is None:
+        raise ManifestError(f"{where}: missing: a trial needs the safety monitor "
+                            "([safety], and `warden safety MANIFEST` running)")
+    path = settings.status_path
+    try:
+        answer = ask(path, timeout_s)
+    except (OSError, ValueError) as error:
+        raise ManifestError(f"{where}.status_socket: no safety monitor answers at {path} "
+                            f"({error}); start it: warden safety {manifest.path}") from None
+    if not answer.get("ok"):
+        problems = "; ".join(str(p) for p in answer.get("problems") or ["not ok"])
+        raise ManifestError(f"{where}: the safety monitor is not ok: {problems}")
+    watched = answer.get("manifest") or {}
+    if watched.get("digest") != manifest.digest:
+        raise ManifestError(
+            f"{where}: the safety monitor watches {watched.get('path', 'another manifest')} "
+            f"(sha256 {str(watched.get('digest'))[:16]}), not this manifest "
+            f"(sha256 {manifest.digest[:16]}): it would check other limits")
+    if not answer.get("can_stop"):
+        raise ManifestError(f"{where}: the safety monitor cannot stop this arm "
+                            f"({answer.get('stop_path')}); a trial needs one that can")
+    return f"{answer.get('device')}; stops via {answer.get('stop_path')} (warden safety status)"
 

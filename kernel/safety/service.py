@@ -91,8 +91,12 @@ def serve(path: str) -> None:
         watch = _connected(chosen)
         stack.callback(watch.close)
         monitor = Monitor(settings, chosen.limits, watch, heartbeat)
-        status = _bound(lambda: StatusServer(settings.status_path, chosen.gid, monitor.status),
-                        "status")
+        manifest = chosen.manifest
+        watched = {"name": manifest.name, "path": str(manifest.path.resolve()),
+                   "digest": manifest.digest}  # a trial checks this is its own manifest
+        status = _bound(lambda: StatusServer(
+            settings.status_path, chosen.gid, lambda: {**monitor.status(), "manifest": watched}),
+            "status")
         stack.callback(status.close)
         _watch(chosen, monitor, status)
 

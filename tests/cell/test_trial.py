@@ -8,18 +8,29 @@ not have started a device, a policy server or a journal.
 
 from __future__ import annotations
 
+import hashlib
+import json
+import os
 import subprocess
 import sys
+from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 
+from kernel.cli_operator import send
 from kernel.signing import sign
+from stubs.ur_controller.launch import EmulatedController
 from tests.cell.harness import MANIFESTS
+from tests.safety.support import FORCE_LIMIT_N, Monitor, ur_manifest, wait_for
 
 ROOT = MANIFESTS.parent
 TEST_KEYS = MANIFESTS / "keys" / "test-only"
 TEST_SIGNER = TEST_KEYS / "test-signer.key"
+TEST_KEY_ID = "276bb30aa3b714e0"
+UR_DEVICE_TIMEOUT_MS = 1000.0
+"""As tests/safety/test_safety_cells.py gives the monitor (the emulator shares two cores)."""
 TRIAL = """
 [trial]
 max_cycles = 1
@@ -27,8 +38,9 @@ max_duration_s = 60.0
 workspace_lower = [-0.80, -0.40, 0.00]
 workspace_upper = [-0.20, 0.35, 0.50]
 speed_scale = 0.5
-max_wrist_force_n = 60.0
+max_wrist_force_n = 150.0
 """
+"""150 N, as the safety monitor's tests use: the MuJoCo cell's grasp peaks near 60 N."""
 
 
 def trial_manifest(tmp: Path, *, trial: str = TRIAL, operator: bool = True,
@@ -92,7 +104,7 @@ def test_signed_manifest_without_an_envelope_is_refused(tmp_path: Path) -> None:
 
 @pytest.mark.parametrize(("key", "line"), [
     ("trial.speed_scale", "speed_scale = 0.5"),
-    ("trial.max_wrist_force_n", "max_wrist_force_n = 60.0"),
+    ("trial.max_wrist_force_n", "max_wrist_force_n = 150.0"),
     ("trial.workspace_upper", "workspace_upper = [-0.20, 0.35, 0.50]"),
 ])
 def test_an_envelope_missing_a_bound_is_refused(tmp_path: Path, key: str, line: str) -> None:
@@ -105,3 +117,141 @@ def test_a_simulated_operator_is_refused(tmp_path: Path) -> None:
     manifest = trial_manifest(tmp_path, operator=False)
     sign(manifest, TEST_SIGNER)
     _refused(run_trial(manifest, tmp_path), tmp_path, "cell.simulated_operator")
+
+
+# -- against a running safety monitor: the UR cell on an emulator the test starts -------------
+
+def _ur_trial(tmp: Path, emulator: EmulatedController, trial: str = TRIAL,
+              name: str = "trial-cell.toml") -> Path:
+    """The emulated UR cell as a trial (its monitor's sockets in ``tmp``), signed."""
+    manifest = ur_manifest(tmp, emulator.host, name=name,
+                           device_timeout_ms=UR_DEVICE_TIMEOUT_MS)
+    manifest.write_text(manifest.read_text() + trial)
+    sign(manifest, TEST_SIGNER)
+    return manifest
+
+
+class _Trial:
+    """``warden trial`` as a child process with no terminal: it waits for the socket."""
+
+    def __init__(self, manifest: Path, tmp: Path) -> None:
+        self.socket = tmp / "operator.sock"
+        self.process = subprocess.Popen(
+            [sys.executable, "-m", "kernel.cli", "trial", str(manifest), "--keys",
+             str(TEST_KEYS), "--journal-dir", str(tmp / "runs"), "--json", "-",
+             "--log-format", "json", "--confirm-timeout", "60"],
+            cwd=ROOT, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+            text=True)
+
+    def confirm(self) -> dict[str, Any]:
+        wait_for(lambda: self.socket.is_socket() or self.process.poll() is not None,
+                 "the trial's operator socket")
+        if self.process.poll() is not None:
+            raise AssertionError(f"the trial exited {self.process.returncode}: "
+                                 f"{self.process.stderr.read() if self.process.stderr else ''}")
+        before = send(str(self.socket), "status", 5.0)
+        assert before == {"ok": True, "run": "sim-ur5e-rtde", "mode": "awaiting confirmation"}, before
+        return send(str(self.socket), "confirm", 5.0)
+
+    def finish(self, timeout_s: float = 120) -> tuple[int, dict[str, Any], str]:
+        out, err = self.process.communicate(timeout=timeout_s)
+        return self.process.returncode, json.loads(out) if out.strip() else {}, err
+
+    def kill(self) -> None:
+        if self.process.poll() is None:
+            self.process.kill()
+            self.process.communicate()
+
+
+@pytest.fixture
+def emulator() -> Iterator[EmulatedController]:
+    with EmulatedController(plant="mujoco") as controller:
+        yield controller
+
+
+@pytest.mark.slow
+def test_no_safety_monitor_is_refused(tmp_path: Path, emulator: EmulatedController) -> None:
+    done = run_trial(_ur_trial(tmp_path, emulator), tmp_path)
+    _refused(done, tmp_path, "safety.status_socket", "no safety monitor answers")
+
+
+@pytest.mark.slow
+def test_a_monitor_watching_another_manifest_is_refused(
+        tmp_path: Path, emulator: EmulatedController) -> None:
+    watched = _ur_trial(tmp_path, emulator, name="watched.toml")
+    trial = _ur_trial(tmp_path, emulator, trial=TRIAL.replace("max_duration_s = 60.0",
+                                                              "max_duration_s = 61.0"))
+    monitor = Monitor(watched, tmp_path)
+    try:
+        monitor.wait_watching()
+        done = run_trial(trial, tmp_path)
+    finally:
+        monitor.stop()
+    _refused(done, tmp_path, "watched.toml", "not this manifest")
+
+
+@pytest.mark.slow
+def test_a_confirmed_trial_runs_inside_its_envelope(
+        tmp_path: Path, emulator: EmulatedController) -> None:
+    manifest = _ur_trial(tmp_path, emulator)
+    monitor = Monitor(manifest, tmp_path)
+    trial: _Trial | None = None
+    try:
+        monitor.wait_watching()
+        trial = _Trial(manifest, tmp_path)
+        answer = trial.confirm()
+        assert answer["ok"] and answer["uid"] == os.getuid(), answer
+        code, summary, err = trial.finish()
+        assert monitor.status()["stops"] == 0
+    finally:
+        if trial is not None:
+            trial.kill()
+        monitor.stop()
+    assert code == 0, err[-3000:]
+    assert summary["cycles"]["verified"] == 1
+    assert summary["trial"]["signer"] == TEST_KEY_ID
+    assert summary["trial"]["confirmed_by_uid"] == os.getuid()
+    assert summary["safety"]["sent"] > 0 and summary["safety"]["failed"] == 0
+    head = json.loads(next((tmp_path / "runs").glob("*/journal.jsonl")).open().readline())
+    assert head["provenance"]["manifest"]["sha256"] == hashlib.sha256(
+        manifest.read_bytes()).hexdigest()
+    assert head["provenance"]["signer"] == TEST_KEY_ID
+    assert head["envelope"]["max_wrist_force_n"] == FORCE_LIMIT_N
+    replayed = subprocess.run(
+        [sys.executable, "-m", "kernel.cli", "replay",
+         str(next((tmp_path / "runs").glob("*/journal.jsonl")))],
+        cwd=ROOT, capture_output=True, text=True, timeout=300, check=False)
+    assert replayed.returncode == 0, replayed.stderr[-2000:]  # the envelope replays too
+    card = err[:err.index("waiting")]
+    for row in ("wrist force", "tool workspace", "stop: operator", "stop: safety monitor",
+                "journal"):
+        assert row in card, card
+
+
+@pytest.mark.slow
+def test_the_envelope_reached_ends_the_trial(tmp_path: Path,
+                                             emulator: EmulatedController) -> None:
+    """A box whose floor lies above the part: the descent to grasp it leaves the box."""
+    manifest = _ur_trial(tmp_path, emulator, trial=TRIAL.replace(
+        "workspace_lower = [-0.80, -0.40, 0.00]", "workspace_lower = [-0.80, -0.40, 0.20]"))
+    monitor = Monitor(manifest, tmp_path)
+    trial: _Trial | None = None
+    try:
+        monitor.wait_watching()
+        trial = _Trial(manifest, tmp_path)
+        trial.confirm()
+        code, summary, err = trial.finish()
+    finally:
+        if trial is not None:
+            trial.kill()
+        monitor.stop()
+    assert code == 1, err[-3000:]
+    assert "ENVELOPE" in summary["trial"]["ended"], summary["trial"]
+    decisions = next((tmp_path / "runs").glob("*/decisions.jsonl")).read_text()
+    assert '"ENVELOPE"' in decisions
+    journal = next((tmp_path / "runs").glob("*/journal.jsonl"))
+    replayed = subprocess.run([sys.executable, "-m", "kernel.cli", "replay", str(journal)],
+                              cwd=ROOT, capture_output=True, text=True, timeout=300,
+                              check=False)
+    assert replayed.returncode == 0, replayed.stderr[-2000:]
+    assert '"ENVELOPE"' in replayed.stdout  # the replayed core reaches the same bound
