@@ -169,11 +169,13 @@ def test_ur_a_controller_that_scales_motion_down_is_not_ready(
 
 def _prepare_servos(port: str) -> None:
     """What an integrator's Dynamixel Wizard session would leave: servo 3's Max Position Limit
-    lowered (EEPROM, torque off), joint 0 turned to 0.5 rad and let go."""
+    lowered and servo 2 given a Homing Offset (EEPROM, torque off), joint 0 turned to 0.5 rad
+    and let go."""
     bus, handler = PortHandler(port), PacketHandler(2.0)
     assert bus.openPort() and bus.setBaudRate(1_000_000)
     try:
         assert handler.write4ByteTxRx(bus, 3, 48, 3500)[0] == COMM_SUCCESS
+        assert handler.write4ByteTxRx(bus, 2, 20, 65)[0] == COMM_SUCCESS
         assert handler.write1ByteTxRx(bus, 1, 64, 1)[0] == COMM_SUCCESS
         goal = 2048 + round(0.5 * 4096 / (2 * math.pi))
         assert handler.write4ByteTxRx(bus, 1, 116, goal)[0] == COMM_SUCCESS
@@ -189,21 +191,41 @@ def _prepare_servos(port: str) -> None:
         bus.closePort()
 
 
-def test_dynamixel_a_servo_limit_and_a_joint_outside_the_manifest_are_not_ready(
+def test_dynamixel_servos_set_otherwise_than_the_manifest_are_not_ready(
         tmp_path: Path, keys: tuple[Path, Path]) -> None:
+    """A servo limit narrower than the manifest's, a joint outside the manifest's limits, and a
+    joint calibrated twice (the servo's Homing Offset and the manifest's offsets_rad)."""
     with device("dynamixel") as emulated:
         _prepare_servos(emulated.settings["port"])
         before = emulated.motion_commands()
-        path = manifest_for(tmp_path, "dynamixel", emulated.settings, keys, edits={
+        settings = {**emulated.settings, "offsets_rad": [0.0, 0.1, 0.0, 0.0, 0.0, 0.0]}
+        path = manifest_for(tmp_path, "dynamixel", settings, keys, edits={
             "position_limits = [[-3.14, 3.14]": "position_limits = [[-0.3, 0.3]"})
         code, report = check(path, keys, tmp_path)
         assert code == 1
         failed = rows(report, "NOT READY")
-        assert set(failed) == {"position limits (52, 48)", "joint positions"}
+        assert set(failed) == {"position limits (52, 48)", "joint positions",
+                               "homing offset (20), drive mode (10)"}
         assert "joint 2 (id 3)" in failed["position limits (52, 48)"]["reason"]
+        assert failed["homing offset (20), drive mode (10)"]["reason"].startswith(
+            "joint 1 (id 2): the servo shifts")
         assert "joint 0 (id 1)" not in failed["position limits (52, 48)"]["reason"]
         assert failed["joint positions"]["reason"].startswith("joint 0: at 0.49")
         assert emulated.motion_commands() == before
+
+
+def test_a_device_that_reports_a_fault_at_connect_is_a_not_ready_row(
+        tmp_path: Path, keys: tuple[Path, Path]) -> None:
+    with device("ur_rtde") as emulated:
+        inject(emulated.control, "protective_stop")
+        code, report = check(manifest_for(tmp_path, "ur_rtde", emulated.settings, keys), keys,
+                             tmp_path)
+        assert code == 1
+        failed = rows(report, "NOT READY")
+        assert set(failed) == {"device: connect"}
+        assert "PROTECTIVE_STOP" in failed["device: connect"]["reason"]
+        assert "device: close" in rows(report, "READY")
+        assert emulated.motion_commands() == 0
 
 
 def test_canopen_a_drive_slower_than_the_manifest_is_not_ready(
