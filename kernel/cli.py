@@ -2,12 +2,14 @@
 
     warden replay SCENARIO|JOURNAL [--out FILE] [--pretty] [--check]
     warden run [MANIFEST] [--cycles N] [--clock wall|virtual] [--json FILE]
+    warden check MANIFEST [--seconds S] [--keys DIR] [--json FILE]
     warden serve-policy [server options]
     warden manifest keygen|sign|verify ...
 
 Exit codes: 0 the command ran (a refused chunk is a result, not an error); 1 ``--check`` found
 a broken expectation, or a run journal did not replay bit for bit (its first difference is
-named); 2 invalid input (the message names the file, the place and the field).
+named), or ``warden check`` found a check NOT READY; 2 invalid input (the message names the file,
+the place and the field).
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ import msgspec
 
 from drivers.base import DriverError
 from kernel import signing
+from kernel.cli_check import add_commands as add_check_commands
 from kernel.cli_operator import add_commands as add_operator_commands
 from kernel.cli_run import add_commands
 from kernel.cli_safety import add_commands as add_safety_commands
@@ -69,6 +72,7 @@ def _parser() -> argparse.ArgumentParser:
     add_operator_commands(commands)
     add_trial_commands(commands)
     add_safety_commands(commands)
+    add_check_commands(commands)
     signing.add_commands(commands)
     return parser
 

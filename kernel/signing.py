@@ -42,6 +42,10 @@ class SignatureError(ValueError):
     """A manifest that is not validly signed; the message names the manifest and the problem."""
 
 
+class Unsigned(SignatureError):
+    """The manifest has no signature file at all (as opposed to one that does not verify)."""
+
+
 @dataclass(frozen=True, slots=True)
 class Verified:
     key_id: str
@@ -175,7 +179,7 @@ def verify(manifest_path: str | Path, keys_dir: str | Path) -> Verified:
 def _read_signature(manifest_path: Path) -> tuple[bytes, str | None]:
     path = signature_path(manifest_path)
     if not path.exists():
-        raise SignatureError(f"{manifest_path}: not signed: no signature file {path} "
+        raise Unsigned(f"{manifest_path}: not signed: no signature file {path} "
                              f"(sign it with `warden manifest sign`)")
     lines = _read(path, "signature").decode("ascii", errors="replace").splitlines()
     signature = _base64(lines[0].encode() if lines else b"", SIGNATURE_BYTES)
@@ -312,6 +316,7 @@ def _fail(text: str) -> int:
     return EXIT_INVALID
 
 
-__all__ = ["SignatureError", "TrustedKey", "Verified", "add_commands", "generate_keypair",
+__all__ = ["SignatureError", "TrustedKey", "Unsigned", "Verified", "add_commands",
+           "generate_keypair",
            "key_id", "load_private_key", "load_public_key", "sign", "signature_path",
            "trusted_keys", "verify"]

@@ -13,7 +13,9 @@ from collections.abc import Sequence
 from canopen.sdo import SdoAbortedError, SdoCommunicationError
 
 from drivers.base import ControlConfig, DriverInitError
+from drivers.canopen402 import watchdog
 from drivers.canopen402._sdk import Network, Node402, PdoMap, PdoMaps
+from drivers.canopen402.drive_state import walk_to
 from drivers.canopen402.health import HealthMonitor
 from drivers.canopen402.settings import CiA402Settings
 from drivers.canopen402.tables import (
@@ -39,6 +41,27 @@ TPDO_LAYOUT = (
     (Index.VELOCITY_ACTUAL, Index.MODES_DISPLAY),
 )
 FAULT_RESET_TIMEOUT_S = 0.5
+
+
+def bring_up(nodes: Sequence[Node402], settings: CiA402Settings,
+             health: HealthMonitor) -> None:
+    """At connect: NMT pre-operational, every node probed, heartbeats started, the watchdog's
+    reaction set, no drive left in FAULT (or the connect refused)."""
+    for node in nodes:
+        node.nmt.state = "PRE-OPERATIONAL"  # SDO configuration is allowed from here on
+    for node in nodes:
+        probe(node, settings)
+    start_heartbeats(nodes, settings, health)
+    watchdog.prepare_all(nodes, settings)
+    for node in nodes:
+        clear_fault(node, settings, health)
+
+
+def settle(nodes: Sequence[Node402], settings: CiA402Settings) -> None:
+    """At the end of configure: CSP selected and confirmed, every drive SWITCH ON DISABLED."""
+    for node in nodes:
+        select_csp(node, settings)
+        walk_to(node, DriveState.SWITCH_ON_DISABLED, settings)
 
 
 def probe(node: Node402, settings: CiA402Settings) -> None:

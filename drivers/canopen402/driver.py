@@ -8,6 +8,8 @@ operational, the bus cycle (RPDOs + SYNC) at the control period, CSP confirmed. 
 target := actual, then up to OPERATION ENABLED. write: targets into the RPDOs, then RPDOs +
 SYNC; the first setpoint arms every drive's watchdog on warden's heartbeat, which every write
 then feeds (:mod:`drivers.canopen402.watchdog`). read: the latest TPDOs, converted to SI units.
+deactivate: targets := actual (unless nothing was commanded since activation), disable.
+inspect (``warden check``): each drive's objects against the settings, reads only.
 Every step that concerns "every drive" includes the gripper drive, so its faults surface exactly
 as a joint's do; only the units and the HOLD/STOP rules differ.
 
@@ -40,7 +42,7 @@ from drivers.base import (
     NotConnected,
     StateSample,
 )
-from drivers.canopen402 import bringup, gripper, watchdog
+from drivers.canopen402 import bringup, gripper, inspection, parameters, watchdog
 from drivers.canopen402._sdk import Node402, PdoVariable
 from drivers.canopen402.cycle import BusCycle
 from drivers.canopen402.drive_state import FAULTY, check_running, current_state, walk_to
@@ -52,6 +54,7 @@ from drivers.canopen402.tables import Command as Controlword
 from drivers.canopen402.tables import DriveState, Index
 from drivers.canopen402.watchdog import DriveWatchdog
 from drivers.device_thread import DeviceThread
+from drivers.readiness import Finding
 
 T = TypeVar("T")
 
@@ -76,6 +79,8 @@ class CiA402Driver:
         """Some drive may be enabled: set before an enable starts, so a half-done activate
         is still quick-stopped on close."""
         self._stop_requested = False
+        self._commanded = False
+        """A command reached the drives since activation (deactivate then holds them)."""
         self._closed = False
         self._seq = 0
         self._watchdog = DriveWatchdog(settings)
@@ -110,21 +115,11 @@ class CiA402Driver:
             for node in self._link.nodes:
                 self._health.attach(node)
             self._link.start_notifier(asyncio.get_running_loop())
-            await self._blocking("bring-up", self._bring_up)
+            await self._blocking("bring-up", bringup.bring_up, self._nodes(), self.settings,
+                                 self._health)
         except BaseException:
             await self.aclose()
             raise
-
-    def _bring_up(self) -> None:
-        nodes = self._nodes()
-        for node in nodes:
-            node.nmt.state = "PRE-OPERATIONAL"  # SDO configuration is allowed from here on
-        for node in nodes:
-            bringup.probe(node, self.settings)
-        bringup.start_heartbeats(nodes, self.settings, self._health)
-        watchdog.prepare_all(nodes, self.settings)
-        for node in nodes:
-            bringup.clear_fault(node, self.settings, self._health)
 
     async def configure(self, control: ControlConfig) -> None:
         joints = self._require_link().joints
@@ -137,30 +132,16 @@ class CiA402Driver:
         except ValueError as error:
             raise DriverInitError(self.name, str(error)) from error
         self._control = control
-        self._rated_torque = await self._blocking("PDO and parameter setup",
-                                                  self._configure_drives, control)
+        self._rated_torque = await self._blocking(
+            "PDO and parameter setup", parameters.configure_drives, self._require_link(),
+            self.settings, self._scales, control)
         self._start_cycle(control)
         await self._blocking("NMT start", bringup.enter_operational, self._nodes(),
                              self.settings, self._health)
         await self._await_cycle("the first TPDOs after NMT start")
-        await self._blocking("CSP mode and SWITCH ON DISABLED", self._settle_drives)
+        await self._blocking("CSP mode and SWITCH ON DISABLED", bringup.settle, self._nodes(),
+                             self.settings)
         self._check()
-
-    def _configure_drives(self, control: ControlConfig) -> tuple[int, ...]:
-        link = self._require_link()
-        rated = []
-        for joint, node in enumerate(link.joints):
-            try:
-                rated.append(bringup.write_parameters(node, self._scales[joint], control, joint))
-            except ValueError as error:  # a limit that does not fit INTEGER32 counts
-                raise DriverInitError(self.name, f"joint {joint} (node {node.id}): {error}; "
-                                      "check counts_per_rev and the joint limits") from error
-        if link.gripper is not None:
-            gripper.configure(link.gripper, self.settings.gripper_scale(), control)
-        for node in link.nodes:
-            bringup.map_pdos(node)
-            bringup.stop_echo(link.network, node)
-        return tuple(rated)
 
     def _start_cycle(self, control: ControlConfig) -> None:
         link = self._require_link()
@@ -184,17 +165,12 @@ class CiA402Driver:
         if self._cycle is not None:
             self._cycle.on_tpdo(node_id, cob_id)
 
-    def _settle_drives(self) -> None:
-        for node in self._nodes():
-            bringup.select_csp(node, self.settings)
-            walk_to(node, DriveState.SWITCH_ON_DISABLED, self.settings)
-
     async def activate(self) -> None:
         self._check()
         self._hold_targets()  # a CSP drive follows its target at once: start from where it is
         if self._gripper is not None:
             self._gripper.start_here()
-        self._stop_requested = False
+        self._stop_requested = self._commanded = False
         self._powered = True
         await self._blocking("enable", self._for_each, walk_to, DriveState.OPERATION_ENABLED,
                              self.settings)
@@ -212,6 +188,7 @@ class CiA402Driver:
 
     async def write(self, command: Command) -> Applied:
         self._check()
+        self._commanded = True
         if command.kind is CommandKind.POSITION and self._watchdog.to_arm:
             await self._blocking("arm the drives' watchdog", self._for_each, watchdog.arm,
                                  self._watchdog.entry)  # the first setpoint: see watchdog.py
@@ -227,6 +204,7 @@ class CiA402Driver:
 
     async def hold(self) -> Applied:
         self._check()
+        self._commanded = True
         self._watchdog.beat()
         q = self._hold_targets()
         self._keep_gripper()
@@ -240,8 +218,9 @@ class CiA402Driver:
 
     async def deactivate(self) -> None:
         self._active = False
-        self._hold_targets()
-        self._keep_gripper()
+        if self._commanded:  # else the targets set at activation hold: rewriting is motion
+            self._hold_targets()
+            self._keep_gripper()
         if self._watchdog.armed:  # beating meanwhile (_blocking): no drive stops on the way
             await self._blocking("disarm the drives' watchdog", self._for_each, watchdog.disarm)
             self._watchdog.armed = False
@@ -336,6 +315,16 @@ class CiA402Driver:
         return Applied(kind=kind, t_mono_ns=time.monotonic_ns(), accepted=False, reason=reason)
 
     # -- checks --------------------------------------------------------------------------------
+
+    async def inspect(self) -> tuple[Finding, ...]:
+        """Each drive's objects against the settings and limits (reads only; ``warden check``,
+        see :mod:`drivers.canopen402.inspection`)."""
+        self._check()
+        drives = await self._blocking("inspect the drives", inspection.read_configuration,
+                                      self._nodes())
+        opening = self._gripper.opening() if self._gripper is not None else None
+        return inspection.findings(inspection.Inspected(self.settings, self._require_control(),
+                                                        drives, opening))
 
     def drive_states(self) -> dict[int, DriveState]:
         """Each node's 402 state from its last statusword."""

@@ -42,6 +42,12 @@ class Index(IntEnum):
     TORQUE_ACTUAL = 0x6077
     TARGET_POSITION = 0x607A
     SOFTWARE_LIMITS = 0x607D
+    MAX_PROFILE_VELOCITY = 0x607F
+    """In position units (here: counts) per second."""
+    POSITION_ENCODER_RESOLUTION = 0x608F
+    """Sub-index 1 encoder increments per sub-index 2 motor revolutions."""
+    GEAR_RATIO = 0x6091
+    """Sub-index 1 motor revolutions per sub-index 2 shaft revolutions."""
     INTERPOLATION_PERIOD = 0x60C2
     SUPPORTED_MODES = 0x6502
 

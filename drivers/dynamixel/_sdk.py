@@ -62,6 +62,14 @@ class PacketHandlerLike(Protocol):
         self, port: PortHandlerLike, dxl_id: int, address: int
     ) -> tuple[int, int, int]: ...
 
+    def read2ByteTxRx(
+        self, port: PortHandlerLike, dxl_id: int, address: int
+    ) -> tuple[int, int, int]: ...
+
+    def read4ByteTxRx(
+        self, port: PortHandlerLike, dxl_id: int, address: int
+    ) -> tuple[int, int, int]: ...
+
     def write1ByteTxRx(
         self, port: PortHandlerLike, dxl_id: int, address: int, data: int
     ) -> tuple[int, int]: ...

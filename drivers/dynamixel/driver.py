@@ -8,9 +8,12 @@ thread-safe and its calls block (and spin) while they wait for a reply.
   the model numbers, and pick Fast Sync Read when the servos answer it (else Sync Read).
 - configure: torque off, position mode.
 - activate: Bus Watchdog cleared (off, and out of a Bus Watchdog Error a previous run left),
-  goals := present positions, then torque on. deactivate: hold, Bus Watchdog off, torque stays
-  on (an arm under gravity must not drop because streaming stopped). aclose: torque off, port
-  closed.
+  goals := present positions, then torque on. deactivate: hold (unless nothing was written
+  since activation: the goals set then still hold the arm, and a goal write with torque on is
+  a motion command), Bus Watchdog off, torque stays on (an arm under gravity must not drop
+  because streaming stopped). aclose: torque off, port closed.
+- inspect (``warden check``): the control table against the settings and the manifest's
+  limits, reads only (:mod:`drivers.dynamixel.inspection`).
 - Bus Watchdog (``watchdog_periods``): the first position setpoint after activation arms it
   on every servo with one broadcast (the kernel's bring-up sends nothing for longer than a
   watchdog between activation and its first tick); every packet feeds it; when it expires the
@@ -47,10 +50,12 @@ from drivers.base import (
     StateSample,
 )
 from drivers.device_thread import DeviceThread
+from drivers.dynamixel import inspection
 from drivers.dynamixel.bus import DynamixelBus, RawState
 from drivers.dynamixel.settings import GRIPPER_MAX_OPENING_M, DynamixelSettings
 from drivers.dynamixel.tables import POSITION_MODE_TICKS
 from drivers.dynamixel.units import GripperCalibration, JointCalibration
+from drivers.readiness import Finding
 from drivers.settings import settings_from_mapping
 
 T = TypeVar("T")
@@ -71,6 +76,9 @@ class DynamixelDriver:
         self._tick_lower, self._tick_upper = self.calibration.q_range(*POSITION_MODE_TICKS)
         self._lower, self._upper = self._tick_lower, self._tick_upper
         self._watchdog_units = 0
+        self._control: ControlConfig | None = None
+        self._written = False
+        """A goal went out since activation (deactivate then holds where the arm is)."""
         self._thread: DeviceThread | None = None
         self._bus: DynamixelBus | None = None
         self._seq = 0
@@ -117,12 +125,14 @@ class DynamixelDriver:
         await self._run(bus.prepare_position_mode)
         self._lower = tuple(map(max, control.q_lower, self._tick_lower))
         self._upper = tuple(map(min, control.q_upper, self._tick_upper))
+        self._control = control
 
     async def activate(self) -> None:
         bus = self._connected_bus()
         if self._watchdog_units:
             await self._run(bus.clear_watchdogs)
         await self._run(bus.enable_torque_holding)
+        self._written = False
 
     async def read(self) -> StateSample:
         raw = await self._run(self._connected_bus().read_state)
@@ -140,15 +150,29 @@ class DynamixelDriver:
         return _refused(command.kind, ReasonCode.CONTROLLER_MODE_MISMATCH)
 
     async def hold(self) -> Applied:
+        self._written = True
         raw = await self._run(self._connected_bus().hold_here)
         return Applied(kind=CommandKind.HOLD, t_mono_ns=time.monotonic_ns(),
                        q=self.calibration.q_from_ticks(raw.position))
 
     async def deactivate(self) -> None:
         if self._bus is not None:
-            await self.hold()
+            if self._written:
+                await self.hold()
             if self._watchdog_units:
                 await self._run(self._bus.clear_watchdogs)
+
+    async def inspect(self) -> tuple[Finding, ...]:
+        """The control table against the settings and limits (reads only; after configure)."""
+        bus = self._connected_bus()
+        if self._control is None:
+            raise NotConnected(self.name, f"{self.settings.port}: inspect needs configure first")
+        servos = await self._run(inspection.read_configuration, bus)
+        raw = await self._run(bus.read_state)
+        gripper = None if raw.gripper is None else self.gripper.opening_from_ticks(raw.gripper)
+        return inspection.findings(inspection.Inspected(
+            self.settings, self.calibration, self._control, bus.models, servos, gripper,
+            self._watchdog_units))
 
     async def aclose(self) -> None:
         """Torque off and close the port. Safe to call twice; releases even when a step fails."""
@@ -177,6 +201,7 @@ class DynamixelDriver:
         bus = self._connected_bus()
         if self._watchdog_units and not bus.watchdog_units:  # the first setpoint arms it
             await self._run(bus.arm_watchdogs, self._watchdog_units)
+        self._written = True
         await self._run(bus.write_goals, ticks, self._gripper_tick(command))
         # ``q`` is what was sent before rounding to whole ticks (at most half a tick, 0.77 mrad).
         return Applied(kind=command.kind, t_mono_ns=time.monotonic_ns(), q=q)

@@ -22,7 +22,12 @@ class Register:
 
 MODEL_NUMBER = Register("Model Number", 0, 2)
 FIRMWARE_VERSION = Register("Firmware Version", 6, 1)
+DRIVE_MODE = Register("Drive Mode", 10, 1)
+DRIVE_MODE_REVERSE = 0x01
+"""Drive Mode bit 0: the servo turns the other way round (positions mirrored)."""
 OPERATING_MODE = Register("Operating Mode", 11, 1)
+HOMING_OFFSET = Register("Homing Offset", 20, 4, signed=True)
+"""Added by the servo to every Present Position it reports (and taken off every goal)."""
 MAX_POSITION_LIMIT = Register("Max Position Limit", 48, 4)
 MIN_POSITION_LIMIT = Register("Min Position Limit", 52, 4)
 TORQUE_ENABLE = Register("Torque Enable", 64, 1)
@@ -38,6 +43,9 @@ GOAL_CURRENT = Register("Goal Current", 102, 2, signed=True)
 GOAL_CURRENT_MAX_UNITS = 2047
 """The largest Current Limit of the X series (XM540); each servo refuses a Goal Current above
 its own Current Limit (1193 on an XM430-W350) with a data-limit error."""
+PROFILE_VELOCITY = Register("Profile Velocity", 112, 4)
+"""In position mode, the top speed of the servo's own profile toward each goal (0.229 rev/min
+units); 0: no profile, the servo goes at full speed."""
 GOAL_POSITION = Register("Goal Position", 116, 4, signed=True)
 PRESENT_CURRENT = Register("Present Current", 126, 2, signed=True)
 PRESENT_VELOCITY = Register("Present Velocity", 128, 4, signed=True)

@@ -27,7 +27,7 @@ from drivers.dynamixel._sdk import (
 )
 from drivers.dynamixel.port import TunedPortHandler
 from drivers.dynamixel.settings import DynamixelSettings
-from drivers.dynamixel.units import to_unsigned
+from drivers.dynamixel.units import to_signed, to_unsigned
 
 T = TypeVar("T")
 
@@ -78,6 +78,23 @@ class BusTransactions:
         self._require_answer(dxl_id, f"reading {register.name}", result)
         self._check_status_errors({dxl_id: error})
         return value
+
+    def read_item(self, dxl_id: int, register: tables.Register) -> int:
+        """One control-table item of one servo, sign-converted (for inspection: retried, the
+        status error byte checked like any read).
+
+        Raises:
+            DriverIOError: the servo did not answer.
+            DeviceFault: its status packet carried an error.
+        """
+        read = {1: self._handler.read1ByteTxRx, 2: self._handler.read2ByteTxRx,
+                4: self._handler.read4ByteTxRx}[register.size]
+        with self._link_errors():
+            value, result, error = self._with_retries(
+                lambda: read(self._port, dxl_id, register.address))
+        self._require_answer(dxl_id, f"reading {register.name}", result)
+        self._check_status_errors({dxl_id: error}, f"reading {register.name}")
+        return to_signed(value, register.size) if register.signed else value
 
     def _write_item(self, dxl_id: int, register: tables.Register, value: int) -> None:
         """Write one 1- or 2-byte item (a negative value as two's complement) and check it."""

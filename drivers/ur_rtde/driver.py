@@ -19,6 +19,9 @@ With ``gripper_output`` set, a binary two-finger gripper on a tool digital outpu
 ``Command.gripper`` of POSITION and VELOCITY commands (see ``gripper``): its output is written
 through ur_rtde's IO interface only when the commanded state changes, HOLD and STOP leave it as
 it is, and every read reports the measured opening as ``StateSample.gripper``.
+
+``inspect`` (``warden check``) compares what the controller reports with what a run needs of it,
+reading only (:mod:`drivers.ur_rtde.inspection`).
 """
 
 from __future__ import annotations
@@ -44,8 +47,9 @@ from drivers.base import (
     StateSample,
 )
 from drivers.device_thread import DeviceThread
+from drivers.readiness import Finding
 from drivers.settings import SettingsError
-from drivers.ur_rtde import tables
+from drivers.ur_rtde import inspection, tables
 from drivers.ur_rtde.link import Link, LinkDown, LinkStalled, Mode, Snapshot
 from drivers.ur_rtde.probe import ControllerUnreachable, probe_controller
 from drivers.ur_rtde.settings import URSettings
@@ -65,6 +69,8 @@ class URRTDEDriver:
         self._link: Link | None = None
         self._control: ControlConfig | None = None
         self._watchdog_hz: float | None = None
+        self._version: tuple[int, ...] = ()
+        """URControl's version as the pre-flight probe read it."""
         self._active = False
         self._seq = 0
 
@@ -187,6 +193,11 @@ class URRTDEDriver:
         await self._run(link.end_streaming, timeout_s=self.settings.stop_timeout_s)
         await self._run(link.disarm_watchdog, timeout_s=self.settings.stop_timeout_s)
 
+    async def inspect(self) -> tuple[Finding, ...]:
+        """The controller's status words and speed factors against what a run needs (reads)."""
+        status = await self._run(inspection.read_status, self._link_or_raise())
+        return inspection.findings(self.settings, self._version, status, self._watchdog_hz)
+
     async def aclose(self) -> None:
         """Stop the script if the link is healthy, release both interfaces. Safe to call twice."""
         self._active = False
@@ -216,6 +227,7 @@ class URRTDEDriver:
                 f"{'.'.join(map(str, version))}; this driver needs e-Series PolyScope "
                 f"{'.'.join(map(str, tables.MIN_VERSION))} or newer 5.x: check the controller "
                 "software (CB3 and PolyScope X speak a different protocol to this driver)")
+        self._version = version
         if self._link is None:
             self._link = Link(self.name, settings)
         await self._run(self._link.open, timeout_s=2 * settings.connect_timeout_s)

@@ -15,6 +15,7 @@ from typing import IO, Any
 from drivers.base import ControlConfig
 from kernel.app.compose import Cell, build_cell, effective, world_for
 from kernel.app.report import CycleProgress
+from kernel.core.config import CoreConfig
 from kernel.journal import header
 from kernel.manifest import Manifest
 from kernel.provenance import provenance
@@ -85,15 +86,19 @@ def _on_cycle(context: RunContext, progress: CycleProgress | None):  # type: ign
 async def bring_up(context: RunContext) -> None:
     """Connect, configure and activate the driver. The core's motion starts at its first tick
     from the first measured sample: a real device starts wherever it was parked."""
-    config = context.cell.core.config
+    await context.cell.driver.configure(control_config(context.cell.core.config))
+    await context.cell.driver.activate()
+
+
+def control_config(config: CoreConfig) -> ControlConfig:
+    """What the driver is configured with: the arm's joints (not the gripper column), the
+    control period and the limits, as the core enforces them."""
     limits = config.limits
     arm = limits.arm_mask
-    control = ControlConfig(
+    return ControlConfig(
         dof=int(arm.sum()), period_ns=config.control_period_ns,
         q_lower=tuple(limits.lower[arm].tolist()), q_upper=tuple(limits.upper[arm].tolist()),
         v_max=tuple(limits.velocity[arm].tolist()))
-    await context.cell.driver.configure(control)
-    await context.cell.driver.activate()
 
 
 def report_progress(context: RunContext, progress: CycleProgress | None) -> None:

@@ -4,9 +4,11 @@ Prints ``READY {json}`` (fault port, bus, nodes) once the drives have booted, th
 bus until SIGTERM/SIGINT. Faults arrive on a loopback line-JSON port (stubs.fault_control):
 ``emcy`` (node, code), ``heartbeat_stop`` (node), ``quick_stop`` (node), ``ignore_mode`` (node),
 ``clear``; the same port answers ``drives`` (each drive's 402 and NMT state, heartbeat consumer,
-abort connection option and the lost connections it reacted to) and the plant's
-``ground_truth``. With ``--gripper-node N`` one more drive (node N) moves the plant's gripper: its
-CSP target is the opening in counts (``--gripper-counts-per-m``), and faults name it like a joint.
+abort connection option and the lost connections it reacted to), ``motion`` (the motion
+commands each drive was given: see ``EmulatedDrive.motion_commands``) and the plant's
+``ground_truth``. With ``--gripper-node N`` one more drive (node N) moves the plant's gripper:
+its CSP target is the opening in counts (``--gripper-counts-per-m``), and faults name it like a
+joint.
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ from typing import Any
 
 from stubs.cia402_drive.emulator import (
     GRIPPER_COUNTS_PER_M,
+    MAX_PROFILE_VELOCITY_RAD_S,
     DriveEmulator,
     EmulatorConfig,
     encoders_for,
@@ -51,6 +54,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                         help="node id of a gripper drive (position = opening); default none")
     parser.add_argument("--gripper-counts-per-m", type=float, default=GRIPPER_COUNTS_PER_M,
                         help="gripper position counts per metre of opening")
+    parser.add_argument("--max-profile-velocity", type=float, default=MAX_PROFILE_VELOCITY_RAD_S,
+                        help="every joint drive's 0x607F, in rad/s (reported, not enforced)")
     parser.add_argument("--fault-port", type=int, default=0, help="0: any free port")
     return parser.parse_args(argv)
 
@@ -71,12 +76,14 @@ def main(argv: list[str] | None = None) -> int:
         node_ids=args.nodes,
         encoders=encoders_for(args.nodes, args.counts_per_rev, args.directions, args.offsets),
         gripper_node=args.gripper_node, gripper_counts_per_m=args.gripper_counts_per_m,
+        max_profile_velocity=args.max_profile_velocity,
     )
     emulator = DriveEmulator(config, make_plant(args.plant)).start()
     gc.freeze()  # object dictionaries and the plant live forever: keep full GC passes short
     handlers = {name: _handler(emulator, name) for name in emulator.faults}
     handlers.update(world_handlers(emulator.plant, emulator.lock))
     handlers["drives"] = lambda _: {"drives": emulator.report()}
+    handlers["motion"] = lambda _: emulator.motion()
     faults = FaultControlServer("127.0.0.1", args.fault_port, handlers).start()
     stop = threading.Event()
     for signum in (signal.SIGTERM, signal.SIGINT):

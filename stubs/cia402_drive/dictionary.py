@@ -82,11 +82,15 @@ PROFILE: dict[Index, Entry] = {
     Index.RATED_TORQUE: Entry("Motor rated torque", U32, "rw", RATED_TORQUE_MNM),
     Index.TORQUE_ACTUAL: Entry("Torque actual value", I16, "ro", pdo_mappable=True),
     Index.TARGET_POSITION: Entry("Target position", I32, "rw", pdo_mappable=True),
+    Index.MAX_PROFILE_VELOCITY: Entry("Max profile velocity", U32, "rw"),
     Index.SUPPORTED_MODES: Entry("Supported drive modes", U32, "ro",
                                  sum(SUPPORTED_MODE_BITS.values())),
 }
-"""The CiA 402 single-variable objects the drive implements (0x607D and 0x60C2 have
-sub-indices and are built in ``_profile``)."""
+"""The CiA 402 single-variable objects the drive implements (0x607D, 0x608F, 0x6091 and 0x60C2
+have sub-indices and are built in ``_profile``)."""
+ENCODER_INCREMENTS = 2**23
+"""0x608F's default: a 23-bit encoder on the motor shaft, one increment per position unit (the
+drive sets its own build's resolution at power-on)."""
 
 
 def object_dictionary(node_id: int) -> ObjectDictionary:
@@ -127,6 +131,14 @@ def _profile() -> Iterator[ODVariable | ODRecord | ODArray]:
     _add_members(limits, [Entry("Min position limit", I32, "rw"),
                           Entry("Max position limit", I32, "rw")])
     yield limits
+    resolution = ODArray("Position encoder resolution", Index.POSITION_ENCODER_RESOLUTION)
+    _add_members(resolution, [Entry("Encoder increments", U32, "rw", ENCODER_INCREMENTS),
+                              Entry("Motor revolutions", U32, "rw", 1)])
+    yield resolution
+    gear = ODArray("Gear ratio", Index.GEAR_RATIO)
+    _add_members(gear, [Entry("Motor revolutions", U32, "rw", 1),
+                        Entry("Shaft revolutions", U32, "rw", 1)])
+    yield gear
     yield _record(Index.INTERPOLATION_PERIOD, "Interpolation time period",
                   [Entry("Interpolation time period value", U8, "rw", 2),
                    Entry("Interpolation time index", I8, "rw", -3)])  # 2 × 10⁻³ s

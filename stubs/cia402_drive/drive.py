@@ -63,13 +63,17 @@ LOSS_ERROR_CODES = {
 
 NMT_LOSSES = {"STOPPED": ConnectionLoss.NMT_STOPPED, "INITIALISING": ConnectionLoss.NMT_RESET}
 """NMT states (as canopen names them) whose entry is a lost connection for 0x6007."""
+NEW_SETPOINT_WINDOW = 1e-3
+"""A drive that starts following its target (OPERATION ENABLED in CSP) with the target further
+than this from its axis (rad, or m for the gripper) was given a new setpoint: a motion command."""
 
 
 class EmulatedDrive:
     def __init__(self, node: LocalNode, encoder: Encoder | LinearEncoder, lock: threading.RLock,
-                 q0: float, following_error: float | None) -> None:
-        """``q0`` and ``following_error`` are in the encoder's unit (rad or m); a None
-        ``following_error`` leaves following-error supervision off (0x6065 = 0xFFFFFFFF)."""
+                 q0: float, following_error: float | None, max_velocity: float) -> None:
+        """``q0``, ``following_error`` and ``max_velocity`` (per second) are in the encoder's
+        unit (rad or m); a None ``following_error`` leaves following-error supervision off
+        (0x6065 = 0xFFFFFFFF)."""
         self.node = node
         self.encoder = encoder
         self.machine = PowerStateMachine()
@@ -92,6 +96,13 @@ class EmulatedDrive:
         self.following_window = float(NO_FOLLOWING_LIMIT) if following_error is None else (
             encoder.counts_per_unit * following_error)
         node.sdo[Index.FOLLOWING_ERROR_WINDOW].raw = round(self.following_window)
+        node.sdo[Index.MAX_PROFILE_VELOCITY].raw = round(encoder.counts_per_unit * max_velocity)
+        if isinstance(encoder, Encoder):  # a rotary axis: increments per turn, no gearbox
+            node.sdo[Index.POSITION_ENCODER_RESOLUTION][1].raw = encoder.counts_per_rev
+        self.motion_commands = 0
+        """Commands that can move the axis: a new target while following one, or the start of
+        following (enable, or a mode switch) with a target away from the axis."""
+        self._setpoint_window = NEW_SETPOINT_WINDOW * encoder.counts_per_unit
         self._live: dict[int, Callable[[], int]] = {
             Index.STATUSWORD: self.statusword,
             Index.MODES_DISPLAY: lambda: int(self.mode),
@@ -148,23 +159,38 @@ class EmulatedDrive:
     def _on_write(self, index: int, subindex: int, od: object, data: bytes) -> None:
         value = od.decode_raw(data)  # type: ignore[attr-defined]
         with self._lock:
-            if index in CACHED_PARAMETERS:
-                setattr(self, CACHED_PARAMETERS[index], value)
-            elif index == Index.CONTROLWORD:
-                self._on_controlword(value)
-            elif index == Index.MODES_OF_OPERATION:
-                self._on_mode(value)
-            elif index == Index.QUICK_STOP_OPTION:
-                self.machine.quick_stop_option = value
-            elif index == Index.ABORT_CONNECTION_OPTION:
-                self.abort_option = _abort_option(value)
-            elif index == Index.HEARTBEAT_CONSUMER:
-                self._on_consumer(value)
-            elif index == Index.SOFTWARE_LIMITS:
-                low, high = self._limits
-                self._limits = (value, high) if subindex == 1 else (low, value)
-            elif index == Index.HEARTBEAT_TIME and self.heartbeat_stopped:
-                self.node.nmt.stop_heartbeat()  # LocalNode just restarted it; stay silent
+            following, target = self.follows_target, self.target_counts
+            self._apply_write(index, subindex, value)
+            self._count_motion(following, target)
+
+    def _apply_write(self, index: int, subindex: int, value: int) -> None:
+        if index in CACHED_PARAMETERS:
+            setattr(self, CACHED_PARAMETERS[index], value)
+        elif index == Index.CONTROLWORD:
+            self._on_controlword(value)
+        elif index == Index.MODES_OF_OPERATION:
+            self._on_mode(value)
+        elif index == Index.QUICK_STOP_OPTION:
+            self.machine.quick_stop_option = value
+        elif index == Index.ABORT_CONNECTION_OPTION:
+            self.abort_option = _abort_option(value)
+        elif index == Index.HEARTBEAT_CONSUMER:
+            self._on_consumer(value)
+        elif index == Index.SOFTWARE_LIMITS:
+            low, high = self._limits
+            self._limits = (value, high) if subindex == 1 else (low, value)
+        elif index == Index.HEARTBEAT_TIME and self.heartbeat_stopped:
+            self.node.nmt.stop_heartbeat()  # LocalNode just restarted it; stay silent
+
+    def _count_motion(self, was_following: bool, old_target: int) -> None:
+        """Count a write that can move the axis (see ``motion_commands``)."""
+        if not self.follows_target:
+            return
+        if was_following:
+            if self.target_counts != old_target:
+                self.motion_commands += 1
+        elif abs(self.target_counts - self.actual[0]) > self._setpoint_window:
+            self.motion_commands += 1
 
     def _on_controlword(self, controlword: int) -> None:
         was_enabled = self.machine.enabled

@@ -21,6 +21,7 @@ injection. In-process on ``virtual``; across processes on ``udp_multicast`` (``_
 from __future__ import annotations
 
 import logging
+import math
 import os
 import select
 import socket
@@ -60,6 +61,10 @@ DEFAULT_CYCLE_US = 2000
 GRIPPER_COUNTS_PER_M = 1_000_000.0
 """The gripper drive's stroke sensor as built by default: one count per micrometre of opening
 (a drive made to match the driver's default; tests check that the two agree)."""
+MAX_PROFILE_VELOCITY_RAD_S = 2 * math.pi
+"""0x607F of a joint drive as built by default: a motor faster than any joint limit the shipped
+manifests set."""
+GRIPPER_MAX_VELOCITY_M_S = 0.15
 UDP_RECEIVE_BUFFER = 4 * 1024 * 1024
 """Requested SO_RCVBUF; Linux caps it at net.core.rmem_max."""
 
@@ -78,6 +83,8 @@ class EmulatorConfig:
     gripper_node: int | None = None
     """One more drive, whose position is the plant's gripper opening; None: no gripper drive."""
     gripper_counts_per_m: float = GRIPPER_COUNTS_PER_M
+    max_profile_velocity: float = MAX_PROFILE_VELOCITY_RAD_S
+    """Every joint drive's 0x607F, in rad/s (reported, not enforced)."""
 
     def __post_init__(self) -> None:
         if len(self.encoders) != len(self.node_ids):
@@ -160,14 +167,14 @@ class DriveEmulator:
         ):
             self.drives[node_id] = EmulatedDrive(
                 self._create_node(network, node_id), encoder, self.lock, state.q[joint],
-                self.config.following_error_rad)
+                self.config.following_error_rad, self.config.max_profile_velocity)
         self._joints = tuple(self.drives.values())
         node_id = self.config.gripper_node
         if node_id is not None:
             # No following-error supervision: a grasp holds the fingers off their target.
             drive = EmulatedDrive(self._create_node(network, node_id),
                                   LinearEncoder(self.config.gripper_counts_per_m), self.lock,
-                                  state.gripper, None)
+                                  state.gripper, None, GRIPPER_MAX_VELOCITY_M_S)
             self.drives[node_id] = drive
             self.gripper = GripperLink(drive)
 
@@ -300,6 +307,12 @@ class DriveEmulator:
                 "connection_losses": [str(loss) for loss in drive.connection_losses],
                 "error_code": drive.error_code,
             } for node_id, drive in self.drives.items()}
+
+    def motion(self) -> dict[str, Any]:
+        """The motion commands each drive was given (the test control port's ``motion``)."""
+        with self.lock:
+            by_node = {str(i): drive.motion_commands for i, drive in self.drives.items()}
+        return {"motion_commands": sum(by_node.values()), "by_node": by_node}
 
     def _fault_emcy(self, node: int | None = None, code: int = EMCY_OVER_CURRENT,
                     register: int = ERROR_REGISTER_CURRENT) -> None:

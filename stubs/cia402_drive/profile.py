@@ -45,6 +45,13 @@ class Index(IntEnum):
     TORQUE_ACTUAL = 0x6077
     TARGET_POSITION = 0x607A
     SOFTWARE_LIMITS = 0x607D
+    MAX_PROFILE_VELOCITY = 0x607F
+    """In position units per second; written at power-on from the drive's build, not enforced
+    by this emulator (a CSP target stream is followed as it comes)."""
+    POSITION_ENCODER_RESOLUTION = 0x608F
+    """Sub 1 encoder increments per sub 2 motor revolutions."""
+    GEAR_RATIO = 0x6091
+    """Sub 1 motor revolutions per sub 2 shaft (joint) revolutions."""
     INTERPOLATION_PERIOD = 0x60C2
     SUPPORTED_MODES = 0x6502
 

@@ -211,7 +211,14 @@ class Bus:
             "hardware_error": self._inject_hardware_error,
             "clear": self._clear,
             "peek": self._peek,
+            "motion": self._motion,
         }
+
+    def _motion(self, request: dict[str, Any]) -> dict[str, Any]:
+        """Not a fault: the goal writes each servo applied with torque on (tests)."""
+        with self.lock:
+            by_id = {str(i): servo.motion_writes for i, servo in self.servos.items()}
+        return {"motion_commands": sum(by_id.values()), "by_id": by_id}
 
     def _peek(self, request: dict[str, Any]) -> dict[str, Any]:
         """Not a fault: one control-table item (``item``: its address, ``size`` in bytes) as

@@ -146,6 +146,9 @@ class ServoTable:
         self.set(Addr.MODEL_NUMBER, 2, model_number)
         self.set(Addr.ID, 1, servo_id)
         self.set(Addr.BAUD_RATE, 1, baud_code)
+        self.motion_writes = 0
+        """Writes of a goal value (Goal PWM, Current, Velocity, Position) applied while torque
+        was on: each one can move the servo, even a goal equal to where it already is."""
 
     def get(self, address: int, size: int, signed: bool = False) -> int:
         raw = self.memory[address:address + size]
@@ -193,6 +196,10 @@ class ServoTable:
         error = self._check_write(address, data)
         if error == ErrorCode.NONE:
             self.memory[address:address + len(data)] = data
+            end = address + len(data)
+            if self.torque_enabled and any(_overlaps(address, end, low, high)
+                                           for low, high in GOAL_VALUES):
+                self.motion_writes += 1
         return error
 
     def trip(self, bits: int) -> None:

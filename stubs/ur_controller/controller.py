@@ -149,7 +149,13 @@ class URController:
             "io_state": lambda _: self._io_state(),
             "status": lambda _: self._status(),
             "lose_io_write": lambda request: self._lose_io_writes(int(request.get("count", 1))),
+            "motion": lambda _: self._motion(),
         }
+
+    def _motion(self) -> dict[str, int]:
+        """Not a fault: how many motion commands the control script executed (tests)."""
+        with self.lock:
+            return {"motion_commands": self.script.motion_commands}
 
     def _lose_io_writes(self, count: int) -> None:
         with self._locked():

@@ -36,6 +36,13 @@ from stubs.ur_controller.watchdog import RTDEWatchdogs
 MOVEJ, SPEEDJ, SERVOJ = 1, 9, 11
 SPEED_STOP, SERVO_STOP, STOPL, STOPJ, SET_WATCHDOG, STOP_SCRIPT = 15, 16, 33, 34, 35, 255
 REALTIME_COMMANDS = frozenset({24, 11, 9, 10, 6, 25, 26, 27, 38, 58, 66, 67, 68, 69, 70, 71})
+MOTION_COMMANDS = frozenset({
+    1, 2, 3, 4,  # moveJ, moveJ_IK, moveL, moveL_FK
+    6, 9, 10, 11, 12, 24,  # forceMode, speedJ, speedL, servoJ, servoC, servoL
+    18, 41, 45, 51, 52, 66,  # teachMode, jogStart, movePath, moveUntilContact, freedrive, torque
+})
+"""Every command of rtde_control.script that can set the arm in motion; the stops (speedStop,
+servoStop, stopL, stopJ) only bring it to rest, and are not counted."""
 READY, DONE = 1, 2
 ARRIVED_RAD = 1e-3
 
@@ -71,6 +78,9 @@ class ControlScript:
         """The last servoJ timing parameters (t, lookahead_time, gain), as the script keeps them."""
         self._servo_window: ServoLookahead | None = None
         self._stopping: ProgramStop | None = None
+        self.motion_commands = 0
+        """Motion commands executed since the controller started: one per command, and one per
+        controller cycle for a real-time one (servoJ, speedJ, ...), which runs every cycle."""
         self._by_command: dict[int, Callable[[], None]] = {
             MOVEJ: self._move_j,
             SPEEDJ: lambda: self.plant.command_velocity(self._doubles(0, 6)),
@@ -159,6 +169,8 @@ class ControlScript:
             self._write_out(0, DONE)
 
     def _process(self, command: int) -> None:
+        if command in MOTION_COMMANDS:
+            self.motion_commands += 1
         if command not in (SERVOJ, SET_WATCHDOG):
             self._servo_window = None  # after any other motion servoj starts afresh
         handler = self._by_command.get(command)
