@@ -150,7 +150,8 @@ class _Trial:
             raise AssertionError(f"the trial exited {self.process.returncode}: "
                                  f"{self.process.stderr.read() if self.process.stderr else ''}")
         before = send(str(self.socket), "status", 5.0)
-        assert before == {"ok": True, "run": "sim-ur5e-rtde", "mode": "awaiting confirmation"}, before
+        assert before == {"ok": True, "run": "sim-ur5e-rtde",
+                          "mode": "awaiting confirmation"}, before
         return send(str(self.socket), "confirm", 5.0)
 
     def finish(self, timeout_s: float = 120) -> tuple[int, dict[str, Any], str]:
