@@ -7,7 +7,10 @@
 
 Exit codes: 0 the command ran (a refused chunk is a result, not an error); 1 ``--check`` found
 a broken expectation, or a run journal did not replay bit for bit (its first difference is
-named); 2 invalid input (the message names the file, the place and the field).
+named); 2 invalid input (the message names the file, the place and the field); 3 the record is
+incomplete: ``warden run`` could not write its journal (the core stopped the arm and the run
+ended), or ``warden replay`` found a journal or decision log whose last line was cut off (it
+replayed and compared everything before that line, which was identical).
 """
 
 from __future__ import annotations
@@ -29,7 +32,7 @@ from kernel.replay import Replay, as_dict, check_expectations
 from kernel.scenario import Scenario, ScenarioError, load_scenario
 from kernel.timeline import render
 
-EXIT_OK, EXIT_CHECK_FAILED, EXIT_INVALID = 0, 1, 2
+EXIT_OK, EXIT_CHECK_FAILED, EXIT_INVALID, EXIT_INCOMPLETE = 0, 1, 2, 3
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -73,6 +76,10 @@ def _parser() -> argparse.ArgumentParser:
 
 def _replay(args: argparse.Namespace) -> int:
     scenario = load_scenario(args.scenario)
+    if scenario.cut is not None:
+        print(f"warden: {scenario.path}: line {scenario.cut} is incomplete (the run was cut "
+              f"off while writing it): replaying lines 1 to {scenario.cut - 1}",
+              file=sys.stderr)
     run = Replay(scenario)
     encoded = [encode(line) for line in run.lines()]
     if args.out:
@@ -92,38 +99,65 @@ def _replay(args: argparse.Namespace) -> int:
         sys.stdout.flush()
     verdict = _verify_journal(scenario, run, encoded) if scenario.recorded_ticks else EXIT_OK
     checked = _check(scenario, decoded) if args.check else EXIT_OK
+    if EXIT_CHECK_FAILED in (verdict, checked):
+        return EXIT_CHECK_FAILED
     return max(verdict, checked)
 
 
 def _verify_journal(scenario: Scenario, run: Replay, encoded: list[bytes]) -> int:
     """A run journal replays bit for bit: every command, and the run's decision log if it sits
-    beside the journal. Says so on stderr, or names the first difference (exit 1)."""
+    beside the journal. Says so on stderr, or names the first difference (exit 1). A record
+    cut off (the journal's or the decision log's last line incomplete) is compared as far as
+    both files go, and said to be incomplete (exit 3)."""
     problem = run.first_difference
     decisions = Path(scenario.path).with_name("decisions.jsonl")
     compared = decisions.is_file()
+    decisions_cut: int | None = None
+    recorded: list[bytes] = []
     if problem is None and compared:
         try:
-            recorded = decisions.read_bytes().splitlines()
+            recorded, decisions_cut = _whole_lines(decisions.read_bytes())
         except OSError as error:
             raise ScenarioError(f"{decisions}: cannot read file: {error.strerror}") from None
-        problem = _first_line_difference(recorded, encoded)
+        incomplete = scenario.cut is not None or decisions_cut is not None
+        problem = _first_line_difference(recorded, encoded, prefix_only=incomplete)
     where = f"{scenario.path}: replay"
     if problem is not None:
         print(f"warden: {where}: first difference {problem}", file=sys.stderr)
         return EXIT_CHECK_FAILED
-    against = f" and the {len(encoded)} lines of {decisions.name}" if compared else ""
-    print(f"warden: {where}: identical: {run.commands_checked} commands{against}",
-          file=sys.stderr)
-    return EXIT_OK
+    if decisions_cut is not None:
+        print(f"warden: {decisions}: line {decisions_cut} is incomplete (the run was cut off "
+              "while writing it): compared the lines before it", file=sys.stderr)
+    if scenario.cut is None and decisions_cut is None:
+        against = f" and the {len(encoded)} lines of {decisions.name}" if compared else ""
+        print(f"warden: {where}: identical: {run.commands_checked} commands{against}",
+              file=sys.stderr)
+        return EXIT_OK
+    against = (f" and the {min(len(recorded), len(encoded))} decision lines both files hold"
+               if compared else "")
+    print(f"warden: {where}: identical as far as the record goes: {run.commands_checked} "
+          f"commands{against}; the record is incomplete", file=sys.stderr)
+    return EXIT_INCOMPLETE
 
 
-def _first_line_difference(recorded: list[bytes], replayed: list[bytes]) -> str | None:
+def _whole_lines(data: bytes) -> tuple[list[bytes], int | None]:
+    """The complete lines of a decision log, and the number of an incomplete last one."""
+    lines = data.splitlines()
+    if not data or data.endswith((b"\n", b"\r")):
+        return lines, None
+    return lines[:-1], len(lines)
+
+
+def _first_line_difference(recorded: list[bytes], replayed: list[bytes],
+                           prefix_only: bool = False) -> str | None:
+    """The first line that differs; unless ``prefix_only`` (a record cut off), also a
+    difference in length."""
     for number, (old, new) in enumerate(zip(recorded, replayed, strict=False), start=1):
         if old != new:
             # The recorded file may be damaged: never fail on its bytes while quoting them.
             return (f"in decisions.jsonl line {number}: recorded "
                     f"{old.decode(errors='replace')[:300]}, replayed {new.decode()[:300]}")
-    if len(recorded) != len(replayed):
+    if len(recorded) != len(replayed) and not prefix_only:
         return (f"in decisions.jsonl: {len(recorded)} lines recorded, {len(replayed)} "
                 "replayed")
     return None

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 from pathlib import Path
 
@@ -10,6 +11,7 @@ import pytest
 from kernel.cli import main
 from kernel.cli_run import checked_manifest
 from tests.cell.harness import MANIFESTS
+from tests.filesystems import read_only_tmpfs
 
 BASE = (MANIFESTS / "sim-ur5e.toml").read_text()
 
@@ -319,3 +321,26 @@ def test_a_virtual_clock_with_a_device_exits_2_before_it_starts(
 def test_every_shipped_manifest_is_within_the_bounds() -> None:
     for path in sorted(MANIFESTS.glob("*.toml")):
         checked_manifest(path)
+
+
+@pytest.mark.parametrize("place", ["/dev/null", "/proc", "/proc/self/fd", "read-only"])
+@pytest.mark.parametrize("given_by", ["option", "manifest"])
+@pytest.mark.usefixtures("nothing_starts")
+def test_a_journal_directory_that_cannot_hold_journals_exits_2_naming_the_key(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], place: str, given_by: str
+) -> None:
+    with contextlib.ExitStack() as stack:
+        directory = place if place != "read-only" else str(
+            stack.enter_context(read_only_tmpfs(tmp_path / "ro")))
+        path = tmp_path / "cell.toml"
+        argv = ["run", str(path), "--clock", "virtual", "--cycles", "1"]
+        if given_by == "option":
+            path.write_text(BASE)
+            argv += ["--journal-dir", directory]
+            key = "--journal-dir"
+        else:
+            path.write_text(BASE.replace('directory = "runs"', f'directory = "{directory}"', 1))
+            key = f"{path}: journal.directory"
+        assert main(argv) == 2
+        err = capsys.readouterr().err
+        assert f"{key}: {directory}: cannot keep run journals there" in err, err
