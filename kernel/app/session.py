@@ -166,11 +166,13 @@ def finish(context: RunContext, extra: dict[str, Any]) -> dict[str, Any]:
     }
     summary.extra.update(extra)
     stats = context.recorder.stats
-    summary.extra["journal"] = {"directory": str(context.files.directory or "-"),
-                                "events": stats.events, "gaps": stats.gaps,
-                                "error": stats.error, "fault": context.recorder.fault,
-                                "core_told": context.cell.controller.record_failed,
-                                "tail_written": stats.tail_written}
+    journal: dict[str, Any] = {"directory": str(context.files.directory or "-"),
+                               "events": stats.events, "gaps": stats.gaps, "error": stats.error}
+    if stats.error is not None:  # what became of the run when its record failed
+        journal.update(fault=context.recorder.fault,
+                       core_told=context.cell.controller.record_failed,
+                       tail_written=stats.tail_written)
+    summary.extra["journal"] = journal
     summary.extra["driver"] = {"refused_writes": context.cell.controller.counters.refused_writes,
                                "faults": "; ".join(context.cell.controller.counters.driver_faults)
                                or "none"}

@@ -106,3 +106,23 @@ def test_a_line_cut_inside_a_character_is_a_cut(run_copy: Path, capsys: _Capture
     journal.write_bytes(b"".join(lines[:100]) + cut_inside_e_acute)
     assert main(["replay", str(journal)]) == 3
     assert f"{journal}: line 101 is incomplete" in capsys.readouterr().err
+
+
+def test_a_decision_log_that_stops_at_a_line_boundary_is_incomplete(run_copy: Path,
+                                                                    capsys: _Capture) -> None:
+    """A run killed between writing a batch to its journal and to its decision log."""
+    decisions = run_copy / "decisions.jsonl"
+    lines = decisions.read_bytes().splitlines(keepends=True)
+    decisions.write_bytes(b"".join(lines[:-40]))
+    assert main(["replay", str(run_copy / "journal.jsonl")]) == 3
+    err = capsys.readouterr().err
+    assert f"ends after {len(lines) - 40} of the {len(lines)} lines replayed" in err
+
+
+def test_a_decision_log_longer_than_its_whole_journal_is_a_difference(run_copy: Path,
+                                                                      capsys: _Capture) -> None:
+    decisions = run_copy / "decisions.jsonl"
+    lines = decisions.read_bytes().splitlines(keepends=True)
+    decisions.write_bytes(b"".join(lines + lines[-1:]))
+    assert main(["replay", str(run_copy / "journal.jsonl")]) == 1
+    assert f"{len(lines) + 1} lines recorded, {len(lines)} replayed" in capsys.readouterr().err
