@@ -217,17 +217,18 @@ class Recorder:
                 self._count_gap(part.count)
 
     def _write_tail(self) -> None:
-        """After a failure: the rest of the run into the reserve, if all of it fits."""
-        fits = self._tail.fits()
-        self.stats.tail_written = fits
+        """After a failure: the rest of the run into the reserve, if all of it fits, in the
+        order it was recorded; the first part the disk refuses ends it (a part written after
+        a lost one would leave a hole, and the decision log never gets ahead of the journal)."""
+        writing = self.stats.tail_written = self._tail.fits()
         for part in self._tail.parts:
-            if not fits:
-                self._count_gap(part.count)
-                continue
-            try:
-                part.file.append(part.data)
-            except OSError:
-                self._count_gap(part.count)
+            if writing:
+                try:
+                    part.file.append(part.data)
+                    continue
+                except OSError:
+                    writing = False
+            self._count_gap(part.count)
 
     def _failed(self, record: RecordFile, error: OSError) -> None:
         if self.fault is None:
