@@ -73,6 +73,10 @@ class ReasonCode(StrEnum):
     ENVELOPE = "ENVELOPE"
     """A bound of the trial envelope was reached: the tool left the workspace box (commanded
     or measured), or the wrist force exceeded its limit. The arm stops; the trial ends."""
+    RECORDER_FAILED = "RECORDER_FAILED"
+    """The run's journal or decision log can no longer be written (a full, failing or
+    read-only disk): the arm stops and the run ends, since what followed could be neither
+    replayed nor audited."""
 
 
 _ORDER = {code: index for index, code in enumerate(ReasonCode)}

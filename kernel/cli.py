@@ -8,8 +8,11 @@
 
 Exit codes: 0 the command ran (a refused chunk is a result, not an error); 1 ``--check`` found
 a broken expectation, or a run journal did not replay bit for bit (its first difference is
-named), or ``warden check`` found a check NOT READY; 2 invalid input (the message names the file,
-the place and the field).
+named), or ``warden check`` found a check NOT READY; 2 invalid input (the message names the
+file, the place and the field); 3 the record is incomplete: ``warden run`` could not write its
+journal (the core stopped the arm and the run ended), or ``warden replay`` found a journal or
+decision log that ends early (a last line cut off, or a decision log that stops before the
+replay does); everything both files hold was replayed, compared and identical.
 """
 
 from __future__ import annotations
@@ -33,7 +36,7 @@ from kernel.replay import Replay, as_dict, check_expectations
 from kernel.scenario import Scenario, ScenarioError, load_scenario
 from kernel.timeline import render
 
-EXIT_OK, EXIT_CHECK_FAILED, EXIT_INVALID = 0, 1, 2
+EXIT_OK, EXIT_CHECK_FAILED, EXIT_INVALID, EXIT_INCOMPLETE = 0, 1, 2, 3
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -79,6 +82,10 @@ def _parser() -> argparse.ArgumentParser:
 
 def _replay(args: argparse.Namespace) -> int:
     scenario = load_scenario(args.scenario)
+    if scenario.cut is not None:
+        print(f"warden: {scenario.path}: line {scenario.cut} is incomplete (the run was cut "
+              f"off while writing it): replaying lines 1 to {scenario.cut - 1}",
+              file=sys.stderr)
     run = Replay(scenario)
     encoded = [encode(line) for line in run.lines()]
     if args.out:
@@ -98,40 +105,87 @@ def _replay(args: argparse.Namespace) -> int:
         sys.stdout.flush()
     verdict = _verify_journal(scenario, run, encoded) if scenario.recorded_ticks else EXIT_OK
     checked = _check(scenario, decoded) if args.check else EXIT_OK
+    if EXIT_CHECK_FAILED in (verdict, checked):
+        return EXIT_CHECK_FAILED
     return max(verdict, checked)
 
 
 def _verify_journal(scenario: Scenario, run: Replay, encoded: list[bytes]) -> int:
     """A run journal replays bit for bit: every command, and the run's decision log if it sits
-    beside the journal. Says so on stderr, or names the first difference (exit 1)."""
+    beside the journal. Says so on stderr, or names the first difference (exit 1).
+
+    A record that ends early is compared as far as it goes and said to be incomplete (exit 3):
+    a last line cut off (in the journal or the decision log), or a decision log that is a
+    whole-line prefix of the replay (a run killed after writing a batch to its journal and
+    before writing it to its decision log).
+    """
     problem = run.first_difference
     decisions = Path(scenario.path).with_name("decisions.jsonl")
     compared = decisions.is_file()
+    notes: list[str] = []
+    recorded: list[bytes] = []
     if problem is None and compared:
-        try:
-            recorded = decisions.read_bytes().splitlines()
-        except OSError as error:
-            raise ScenarioError(f"{decisions}: cannot read file: {error.strerror}") from None
-        problem = _first_line_difference(recorded, encoded)
+        recorded, problem = _compare_decisions(scenario, decisions, encoded, notes)
     where = f"{scenario.path}: replay"
     if problem is not None:
         print(f"warden: {where}: first difference {problem}", file=sys.stderr)
         return EXIT_CHECK_FAILED
-    against = f" and the {len(encoded)} lines of {decisions.name}" if compared else ""
-    print(f"warden: {where}: identical: {run.commands_checked} commands{against}",
-          file=sys.stderr)
-    return EXIT_OK
+    for note in notes:
+        print(f"warden: {note}", file=sys.stderr)
+    if scenario.cut is None and not notes:
+        against = f" and the {len(encoded)} lines of {decisions.name}" if compared else ""
+        print(f"warden: {where}: identical: {run.commands_checked} commands{against}",
+              file=sys.stderr)
+        return EXIT_OK
+    against = (f" and the {min(len(recorded), len(encoded))} decision lines both files hold"
+               if compared else "")
+    print(f"warden: {where}: identical as far as the record goes: {run.commands_checked} "
+          f"commands{against}; the record is incomplete", file=sys.stderr)
+    return EXIT_INCOMPLETE
+
+
+def _compare_decisions(scenario: Scenario, decisions: Path, encoded: list[bytes],
+                       notes: list[str]) -> tuple[list[bytes], str | None]:
+    """The recorded decision lines and the first difference from the replayed ones; how the
+    record ends early, if it does, goes to ``notes``.
+
+    Raises:
+        ScenarioError: the decision log cannot be read.
+    """
+    try:
+        recorded, cut = _whole_lines(decisions.read_bytes())
+    except OSError as error:
+        raise ScenarioError(f"{decisions}: cannot read file: {error.strerror}") from None
+    problem = _first_line_difference(recorded, encoded)
+    if problem is not None:
+        return recorded, problem
+    if cut is not None:
+        notes.append(f"{decisions}: line {cut} is incomplete (the run was cut off while "
+                     "writing it): compared the lines before it")
+    elif len(recorded) < len(encoded):
+        notes.append(f"{decisions}: ends after {len(recorded)} of the {len(encoded)} lines "
+                     "replayed (the run stopped before writing the rest)")
+    elif len(recorded) > len(encoded) and scenario.cut is None:
+        return recorded, (f"in decisions.jsonl: {len(recorded)} lines recorded, "
+                          f"{len(encoded)} replayed")
+    return recorded, None
+
+
+def _whole_lines(data: bytes) -> tuple[list[bytes], int | None]:
+    """The complete lines of a decision log, and the number of an incomplete last one."""
+    lines = data.splitlines()
+    if not data or data.endswith((b"\n", b"\r")):
+        return lines, None
+    return lines[:-1], len(lines)
 
 
 def _first_line_difference(recorded: list[bytes], replayed: list[bytes]) -> str | None:
+    """The first line both hold that differs."""
     for number, (old, new) in enumerate(zip(recorded, replayed, strict=False), start=1):
         if old != new:
             # The recorded file may be damaged: never fail on its bytes while quoting them.
             return (f"in decisions.jsonl line {number}: recorded "
                     f"{old.decode(errors='replace')[:300]}, replayed {new.decode()[:300]}")
-    if len(recorded) != len(replayed):
-        return (f"in decisions.jsonl: {len(recorded)} lines recorded, {len(replayed)} "
-                "replayed")
     return None
 
 

@@ -44,16 +44,67 @@ def add_commands(commands: Any) -> None:
     serve.set_defaults(handler=serve_command)
 
 
+EXIT_RECORD_FAILED = 3
+"""The run's record (journal, decision log) could not be written: the core stopped the arm
+and the run ended early (docs/operations.md, exit codes)."""
+
+
 def run_command(args: argparse.Namespace) -> int:
     configure_logging(args)
     manifest = checked_manifest(args.manifest, args.cycles, args.clock)
-    journal_dir = None if args.no_journal or not manifest.journal.enabled else Path(
-        args.journal_dir or manifest.journal.directory)
+    journal_dir = journal_directory(manifest, args.journal_dir, args.no_journal)
     summary = asyncio.run(_run(manifest, journal_dir)) if manifest.cell.clock is (
         ClockKind.VIRTUAL) else run_wall(manifest, journal_dir)
     output(summary, args.json_out)
+    if report_record_failure(summary):
+        return EXIT_RECORD_FAILED
     cycles = summary["cycles"]
     return 0 if cycles["verified"] == cycles["attempted"] == manifest.cell.cycles else 1
+
+
+def journal_directory(manifest: Manifest, override: str | None,
+                      disabled: bool = False) -> Path | None:
+    """Where this run's directory goes, checked before any device, emulator or server starts.
+
+    Raises:
+        ManifestError: it cannot hold run journals (/dev/null, /proc, a read-only or full file
+            system, ...), naming the option or the manifest key and why.
+    """
+    from kernel.shell.record_file import journal_directory_problem
+
+    if disabled or not manifest.journal.enabled:
+        return None
+    key = "--journal-dir" if override else f"{manifest.path}: journal.directory"
+    path = Path(override or manifest.journal.directory)
+    problem = journal_directory_problem(path)
+    if problem is not None:
+        raise ManifestError(f"{key}: {path}: cannot keep run journals there: {problem}")
+    return path
+
+
+def report_record_failure(summary: dict[str, Any]) -> bool:
+    """Say on stderr why a run whose record failed ended, what was lost and where the rest
+    is (stderr may be the only record left: under systemd it lands in the system journal).
+    True if the record failed."""
+    journal = summary.get("journal") or {}
+    if not journal.get("error"):
+        return False
+    tail = {True: "the rest of the run (the failure, the stop, the last ticks) was written "
+                  "into the space the files keep reserved",
+            False: "the rest of the run did not fit into the reserved space and was not "
+                   "written: both files end before the failure",
+            None: "the failure came after the control loop had ended"}[journal["tail_written"]]
+    lines = [f"the run's record could not be written ({journal['error']})",
+             "the core stopped the arm (RECORDER_FAILED) and the run ended"
+             if journal["core_told"] else "the arm was held and the device closed as at the "
+             "end of any run",
+             f"{journal['gaps']} records lost; {tail}",
+             f"run directory: {journal['directory']}"
+             + (f" (summary.json {journal['summary_file']})" if "summary_file" in journal
+                else "")]
+    for line in lines:
+        print(f"warden: {line}", file=sys.stderr)
+    return True
 
 
 def configure_logging(args: argparse.Namespace) -> None:
@@ -140,7 +191,11 @@ def output(summary: dict[str, Any], json_out: str | None) -> None:
     if json_out == "-":
         print(json.dumps(summary, indent=1, default=str))
     elif json_out:
-        Path(json_out).write_text(json.dumps(summary, indent=1, default=str))
+        try:
+            Path(json_out).write_text(json.dumps(summary, indent=1, default=str))
+        except OSError as error:  # after the run: say so, the table above has the summary
+            print(f"warden: --json: cannot write {json_out}: {error.strerror or error}",
+                  file=sys.stderr)
 
 
 def serve_command(args: argparse.Namespace) -> int:

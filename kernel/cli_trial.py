@@ -19,7 +19,15 @@ from typing import Any
 import structlog
 
 from kernel.app.trial import TrialBound, load_trial, safety_watching, trial_card, verdict
-from kernel.cli_run import configure_logging, output, preflight, run_wall
+from kernel.cli_run import (
+    EXIT_RECORD_FAILED,
+    configure_logging,
+    journal_directory,
+    output,
+    preflight,
+    report_record_failure,
+    run_wall,
+)
 from kernel.manifest import Manifest, ManifestError
 from kernel.shell.operator import await_confirmation, socket_path
 from kernel.signing import DEFAULT_KEYS_DIR
@@ -53,8 +61,7 @@ def trial_command(args: argparse.Namespace) -> int:
     manifest = load_trial(Path(args.manifest), Path(args.keys))
     preflight(manifest)
     safety = safety_watching(manifest)
-    journal = Path(args.journal_dir or manifest.journal.directory) if (
-        manifest.journal.enabled) else None
+    journal = journal_directory(manifest, args.journal_dir)
     socket = socket_path(manifest.operator.socket)
     print(trial_card(manifest, socket, safety, journal), file=sys.stderr)
     confirmed_by = _confirmed(manifest, socket, args.confirm_timeout)
@@ -65,7 +72,7 @@ def trial_command(args: argparse.Namespace) -> int:
                         "confirmed_by_uid": confirmed_by}
     output(summary, args.json_out)
     print(f"warden: trial {manifest.name}: {why}", file=sys.stderr)
-    return code
+    return EXIT_RECORD_FAILED if report_record_failure(summary) else code
 
 
 def _confirmed(manifest: Manifest, socket: Path, timeout_s: float) -> int:

@@ -40,6 +40,7 @@ from kernel.core.events import (
     OodEvent,
     OperatorEvent,
     PhaseEvent,
+    RecorderEvent,
     StateEvent,
     TickEvent,
 )
@@ -160,6 +161,7 @@ _BODIES: dict[type, Callable[[Any], dict[str, Any]]] = {
     InsertEvent: lambda e: {"kind": "insert", "xy": list(e.xy), "z_end": e.z_end,
                             "rotation": list(e.rotation)},
     ComputedEvent: lambda e: {"kind": "computed", "result": msgspec.to_builtins(e.result)},
+    RecorderEvent: lambda e: {"kind": "recorder", "fault": e.fault},
 }
 
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import ipaddress
 import math
 import re
 import tomllib
@@ -284,6 +285,11 @@ def _policy(settings: PolicySettings, where: Where) -> PolicySettings:
                                      "false; 0 picks a free port only for a launched server")
     if not settings.host.strip():
         raise where.at("host").error("must not be empty")
+    if settings.launch and not settings.expose and not is_loopback(settings.host):
+        raise where.at("host").error(
+            f"{settings.host!r} is not a loopback address: the reference server warden "
+            "launches would take connections from other hosts (the link has no "
+            "authentication). Use 127.0.0.1, or set policy.expose = true to mean it")
     return settings
 
 
@@ -295,6 +301,17 @@ def _safety(doc: Mapping[str, Any], where: Where, period_ns: int) -> SafetySetti
     if problem:
         raise ManifestError(f"{where.file}: safety.heartbeat_timeout_ms: {problem}")
     return settings
+
+
+def is_loopback(host: str) -> bool:
+    """``localhost`` or an address in 127.0.0.0/8 or ::1 (a name is not resolved: only
+    ``localhost`` is known to stay on this host)."""
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
 
 
 def _settings(cls: type, doc: Mapping[str, Any], key: str, where: Where) -> Any:

@@ -54,6 +54,9 @@ class EmulatorSettings:
 class PolicySettings:
     launch: bool = True
     host: str = "127.0.0.1"
+    expose: bool = False
+    """A launched reference server may listen on a ``host`` that is not loopback (reachable
+    from other hosts: the link has no authentication). Off: such a host is refused."""
     port: int = 0
     latency_median_ms: float = 30.0
     latency_p95_ms: float = 60.0

@@ -14,8 +14,6 @@ import asyncio
 import copy
 import functools
 import logging
-import os
-import socket
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -29,11 +27,10 @@ from drivers.base import DriverInitError
 from drivers.canopen402._sdk import CanBus, Network, Node402, Notifier
 from drivers.canopen402.settings import CiA402Settings
 from drivers.canopen402.tables import DEFAULT_EDS, Command
+from drivers.canopen402.udp_bus import confine_to_host, widen_receive_buffer
 
 log = logging.getLogger(__name__)
 
-UDP_RECEIVE_BUFFER = 4 * 1024 * 1024
-"""Requested SO_RCVBUF; Linux caps it at net.core.rmem_max (4 MB on this machine kind)."""
 NOTIFIER_POLL_S = 0.05
 """Reader-thread receive timeout: bounds how long closing waits for the thread to notice."""
 CATCH_UP_LIMIT = 20_000
@@ -134,6 +131,13 @@ def build_link(settings: CiA402Settings) -> Link:
     bus = _open_bus(settings)
     try:
         widen_receive_buffer(cast(CanBus, bus))
+        if settings.interface == "udp_multicast":
+            confine_to_host(cast(CanBus, bus), settings.channel)
+    except (OSError, ValueError) as error:
+        bus.shutdown()
+        raise DriverInitError(settings.name, f"cannot keep the udp_multicast bus on this host "
+                              f"({settings.describe_bus()}): {error}") from error
+    try:
         network = cast(Network, canopen.Network(bus))
         nodes = tuple(_add_node(network, node_id, eds, settings)
                       for node_id in settings.drive_ids)
@@ -142,25 +146,6 @@ def build_link(settings: CiA402Settings) -> Link:
         raise DriverInitError(settings.name, f"cannot load the object dictionary {eds}: "
                               f"{error}") from error
     return Link(settings, cast(CanBus, bus), network, nodes)
-
-
-def widen_receive_buffer(bus: CanBus, size: int = UDP_RECEIVE_BUFFER) -> None:
-    """Let a UDP-backed bus ride through a stall of its reader without dropping frames.
-
-    On ``udp_multicast`` every process also receives its own frames back, some 10k datagrams/s
-    with six drives at 500 Hz; the default 212 KB receive buffer overflows after a ~25 ms
-    pause of the reader (a busy core, a GC pass), and a dropped SDO reply fails the bring-up.
-    Works on a duplicate of the public ``fileno()``: same socket, no private attributes.
-    """
-    try:
-        fd = bus.fileno()
-    except NotImplementedError:
-        return
-    if fd < 0:
-        return
-    with socket.socket(fileno=os.dup(fd)) as sock:
-        if sock.type == socket.SOCK_DGRAM:
-            sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, size)
 
 
 def _check_interface(settings: CiA402Settings) -> None:

@@ -7,6 +7,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
+from drivers.canopen402.udp_bus import check_group
 from drivers.canopen402.units import (
     GRIPPER_COUNTS_PER_M,
     GRIPPER_STROKE_M,
@@ -99,6 +100,8 @@ class CiA402Settings:
                self.state_timeout_s, self.call_timeout_s) <= 0:
             raise ValueError("timeouts must be positive")
         self._check_watchdog()
+        if self.interface == "udp_multicast" and (problem := check_group(self.channel)):
+            raise ValueError(f"channel: {problem}")
 
     def _check_watchdog(self) -> None:
         if not 1 <= self.master_node_id <= 127 or self.master_node_id in self.drive_ids:

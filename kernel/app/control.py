@@ -2,7 +2,9 @@
 
 Order within a tick, the same in lockstep and in wall-clock runs:
 1. read the driver; a new sample becomes a ``state`` event (with the force residual);
-2. a driver fault reaches the core once, as a ``controller`` event;
+2. a driver fault reaches the core once, as a ``controller`` event, and a failed run record
+   (journal, decision log) once, as a ``recorder`` event: the core stops the arm, and the run
+   ends after this tick (:attr:`ControlLoop.record_failed`);
 3. the operator stand-in (simulation only) and the task may add events: operator actions,
    phase requests, classical moves, the gripper, the contact owner's descent;
 4. the core's tick decides the one motion effect of the period;
@@ -34,6 +36,7 @@ from kernel.core.events import (
     InsertEvent,
     MoveEvent,
     PhaseEvent,
+    RecorderEvent,
     StateEvent,
 )
 from kernel.journal import Applied as JournaledApplied
@@ -73,6 +76,8 @@ class ControlLoop:
         self._last_seq = -1
         self._last_q: np.ndarray | None = None
         self._fault_reported = False
+        self.record_failed = False
+        """The recorder failed and the core was told: the run ends after this tick."""
         self._refusing = False
         self._cycle_started_ns = 0
 
@@ -111,6 +116,7 @@ class ControlLoop:
         """Sense, let the operator and the task speak, and ask the core for the command."""
         sensed = self._sense(sample, t)
         self._report_driver_fault(t)
+        self._report_recorder_fault(t)
         active = self.driver.state is DriverState.ACTIVE
         if self.operator is not None:
             mode = self.gateway.status().mode
@@ -175,6 +181,15 @@ class ControlLoop:
         self.counters.driver_faults.append(f"{reason}: {self.driver.fault_detail}")
         status = ControllerStatus.ESTOP if reason is ReasonCode.E_STOP else ControllerStatus.FAULT
         self.gateway.feed(ControllerEvent(t=t, status=status, reason=reason))
+
+    def _report_recorder_fault(self, t: int) -> None:
+        """A run record that cannot be written reaches the core once (RECORDER_FAILED): its
+        stop is this tick's command, the last the run sends before it ends."""
+        recorder = self.gateway.recorder
+        if self.record_failed or recorder is None or recorder.fault is None:
+            return
+        self.record_failed = True
+        self.gateway.feed(RecorderEvent(t=t, fault=recorder.fault))
 
     def _maybe_next_cycle(self, t: int) -> None:
         if not self.runner.done or self.finished:

@@ -54,7 +54,7 @@ async def run_live(manifest: Manifest, journal_dir: Path | None,
         operator = operator_server(context.cell)
     except BaseException:
         context.cell.world.close()
-        context.files.close()
+        context.recorder.close()
         raise
     server: _Launched | None = None
     worker = JobWorker(context.cell.gateway, context.sections, source_of(manifest))
@@ -93,10 +93,10 @@ async def run_live(manifest: Manifest, journal_dir: Path | None,
         if server is not None:
             await asyncio.to_thread(server.stop)  # after a restart still under way, if any
         context.recorder.close()
-        context.files.close()
     return finish(context, {
         "clock": "wall", "stopped": loop.stop_requested,
-        "timed_out": not (context.cell.controller.finished or loop.stop_requested),
+        "timed_out": not (context.cell.controller.finished or loop.stop_requested
+                          or context.cell.controller.record_failed),
         "task_failures": failures, "loop": {"realtime": realtime.summary()},
         "link": {k: v for k, v in client.counters.snapshot().items() if v} if client else {},
         "jobs": {"done": worker.done, "failed": worker.failed},
@@ -167,8 +167,8 @@ class _Loop:
         budget_ns = round(manifest.cell.cycle_timeout_s * 1e9) * manifest.cell.cycles
         cell.controller.start()
         async with PeriodicTimer(period, early_ns=EARLY_WAKE_NS) as timer:
-            while not (cell.controller.finished or self.stop_requested) and (
-                    cell.gateway.now_ns() < budget_ns):
+            while not (cell.controller.finished or self.stop_requested
+                       or cell.controller.record_failed) and cell.gateway.now_ns() < budget_ns:
                 tick = await timer.wait()
                 self.context.lateness_ns.append(tick.lateness_ns)
                 if tick.skipped or tick.lateness_ns > period // 2:

@@ -34,16 +34,17 @@ async def run_lockstep(manifest: Manifest, journal_dir: Path | None,
         await bring_up(context)
         link.connect()
         cell.controller.start()
-        while not cell.controller.finished and cell.gateway.now_ns() < budget_ns:
+        while not (cell.controller.finished or cell.controller.record_failed) and (
+                cell.gateway.now_ns() < budget_ns):
             link.deliver_due()
             await cell.controller.tick()
+            context.recorder.hand_over_if_due()
             report_progress(context, progress)
             clock.advance(period)
     finally:
         await cell.driver.aclose()
         cell.world.close()
         context.recorder.close()
-        context.files.close()
-    timed_out = not cell.controller.finished
+    timed_out = not (cell.controller.finished or cell.controller.record_failed)
     return finish(context, {"clock": "virtual", "timed_out": timed_out,
                             "link": {"requests": link.requests}, "jobs": {"done": jobs.done}})

@@ -7,20 +7,22 @@ plus ``summary.json``.
 
 from __future__ import annotations
 
+import contextlib
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, Any
+from typing import Any
 
 from drivers.base import ControlConfig
 from kernel.app.compose import Cell, build_cell, effective, world_for
 from kernel.app.report import CycleProgress
 from kernel.core.config import CoreConfig
 from kernel.journal import header
-from kernel.manifest import Manifest
+from kernel.manifest import Manifest, ManifestError
 from kernel.provenance import provenance
 from kernel.shell.heartbeat import HeartbeatStats
-from kernel.shell.recorder import Recorder, open_run_files
+from kernel.shell.record_file import RecordFile, open_run_files
+from kernel.shell.recorder import Recorder
 from kernel.shell.timer import Clock
 from kernel.summary import CycleResult, RunSummary, percentiles
 
@@ -28,13 +30,41 @@ from kernel.summary import CycleResult, RunSummary, percentiles
 @dataclass
 class RunFiles:
     directory: Path | None = None
-    journal: IO[str] | None = None
-    decisions: IO[bytes] | None = None
+    journal: RecordFile | None = None
+    decisions: RecordFile | None = None
+
+    @classmethod
+    def open(cls, journal_dir: Path | None, name: str) -> RunFiles:
+        """A new run directory, or no files at all without a journal directory.
+
+        Raises:
+            ManifestError: the directory cannot hold the run's record (``warden run`` checked
+                it before; this names the directory if it changed since).
+        """
+        if journal_dir is None:
+            return cls()
+        try:
+            return cls(*open_run_files(journal_dir, name))
+        except OSError as error:
+            raise ManifestError(f"{journal_dir}: cannot record the run there: "
+                                f"{error.strerror or error}") from error
 
     def close(self) -> None:
-        for stream in (self.journal, self.decisions):
-            if stream is not None:
-                stream.close()
+        """Close the files (the recorder closes them at the end of a run; this is for a run
+        that failed before it had one)."""
+        for record in (self.journal, self.decisions):
+            if record is not None:
+                with contextlib.suppress(OSError):  # the empty file of a run never started
+                    record.close()
+
+    def discard(self) -> None:
+        """Close and remove the files of a run that never started (nothing was recorded)."""
+        self.close()
+        if self.directory is not None:
+            for record in (self.journal, self.decisions):
+                if record is not None:
+                    record.path.unlink(missing_ok=True)
+            self.directory.rmdir()
 
 
 @dataclass
@@ -54,25 +84,46 @@ class RunContext:
 
 def open_run(manifest: Manifest, clock: Clock, journal_dir: Path | None,
              progress: CycleProgress | None) -> RunContext:
-    """The world, the run's files and the cell; on any failure nothing is left running."""
-    world = world_for(manifest)
+    """The run's files, the world and the cell; on any failure nothing is left running.
+
+    The files come first: a directory that cannot hold the run's record is refused before
+    any device or emulator starts.
+
+    Raises:
+        ManifestError: the files cannot be made (naming the directory), or the cell cannot
+            be built.
+    """
+    files = RunFiles.open(journal_dir, manifest.name)
+    try:
+        world = world_for(manifest)
+    except BaseException:
+        files.discard()
+        raise
     try:
         config, sections = effective(manifest, world)
-        files = RunFiles()
-        if journal_dir is not None:
-            files.directory, files.journal, files.decisions = open_run_files(journal_dir,
-                                                                             manifest.name)
         head = {**header(sections, manifest.name),
                 "provenance": provenance(manifest.digest, manifest.path, manifest.signer)}
-        recorder = Recorder(files.journal, files.decisions, head)
+        recorder = _recorder(files, head)
         cell = build_cell(manifest, config, world, clock, recorder)
     except BaseException:
         world.close()  # an emulator already started must not outlive a failed build
+        files.close()
         raise
     context = RunContext(manifest, cell, recorder, files, sections)
     cell.gateway.listeners.append(context.summary.observe_all)
     cell.controller.on_cycle = _on_cycle(context, progress)
     return context
+
+
+def _recorder(files: RunFiles, head: dict[str, Any]) -> Recorder:
+    """Raises:
+        ManifestError: the journal's header cannot be written.
+    """
+    try:
+        return Recorder(files.journal, files.decisions, head)
+    except OSError as error:
+        raise ManifestError(f"{files.directory}: cannot record the run there: "
+                            f"{error.strerror or error}") from error
 
 
 def _on_cycle(context: RunContext, progress: CycleProgress | None):  # type: ignore[no-untyped-def]
@@ -122,17 +173,24 @@ def finish(context: RunContext, extra: dict[str, Any]) -> dict[str, Any]:
         "lateness_us": _lateness(lateness), **extra.pop("loop", {}),
     }
     summary.extra.update(extra)
-    summary.extra["journal"] = {"directory": str(context.files.directory or "-"),
-                                "events": context.recorder.stats.events,
-                                "gaps": context.recorder.stats.gaps,
-                                "error": context.recorder.stats.error}
+    stats = context.recorder.stats
+    journal: dict[str, Any] = {"directory": str(context.files.directory or "-"),
+                               "events": stats.events, "gaps": stats.gaps, "error": stats.error}
+    if stats.error is not None:  # what became of the run when its record failed
+        journal.update(fault=context.recorder.fault,
+                       core_told=context.cell.controller.record_failed,
+                       tail_written=stats.tail_written)
+    summary.extra["journal"] = journal
     summary.extra["driver"] = {"refused_writes": context.cell.controller.counters.refused_writes,
                                "faults": "; ".join(context.cell.controller.counters.driver_faults)
                                or "none"}
     data = summary.as_dict()
     if context.files.directory is not None:
-        (context.files.directory / "summary.json").write_text(json.dumps(data, indent=1,
-                                                                         default=str))
+        try:
+            (context.files.directory / "summary.json").write_text(json.dumps(data, indent=1,
+                                                                             default=str))
+        except OSError as error:  # the disk that failed the record: stderr carries it
+            data["journal"]["summary_file"] = f"not written: {error.strerror or error}"
     return data
 
 

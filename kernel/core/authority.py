@@ -31,6 +31,7 @@ from kernel.core.events import (
     OperatorAction,
     OperatorEvent,
     PhaseEvent,
+    RecorderEvent,
     StateEvent,
 )
 from kernel.core.lines import (
@@ -263,6 +264,16 @@ def on_controller(state: CoreState, event: ControllerEvent) -> None:
     state.controller_ok = False
     trigger = R.CONTROLLER_REJECT if status == ControllerStatus.REJECT else R.CONTROLLER_FAULT
     state.fire(trigger)
+
+
+def on_recorder(state: CoreState, event: RecorderEvent) -> None:
+    """The run's record can no longer be written: stop the arm (RECORDER_FAILED →
+    CONTROLLER_STOP); the shell ends the run after the tick that carries the stop. In
+    CONTROLLER_STOP or E_STOP the arm is stopped already, and the line says so."""
+    detail = f"the run's record cannot be written: {event.fault}"
+    if not state.fire(R.RECORDER_FAILED, detail=detail):
+        state.refuse(Machine.FALLBACK, Mode.CONTROLLER_STOP, R.RECORDER_FAILED,
+                     f"{detail}; {state.fallback.mode} already stops the arm")
 
 
 # -- the task's motion requests ------------------------------------------------------------------

@@ -31,6 +31,17 @@ class ControllerStatus(StrEnum):
     ESTOP = "estop"
 
 
+class RecorderFault(StrEnum):
+    """Why the run's record (journal, decision log) can no longer be written."""
+
+    NO_SPACE = "no_space"
+    """The file system is full (ENOSPC), or the user's quota is (EDQUOT)."""
+    READ_ONLY = "read_only"
+    """The file system went read-only (EROFS), e.g. remounted after an error."""
+    IO_ERROR = "io_error"
+    """Any other write error (EIO, ...)."""
+
+
 class OperatorAction(StrEnum):
     TAKEOVER = "takeover"
     RELEASE = "release"
@@ -94,6 +105,14 @@ class ControllerEvent(msgspec.Struct, frozen=True, kw_only=True):
     t: int
     status: ControllerStatus
     reason: str | None = None
+
+
+class RecorderEvent(msgspec.Struct, frozen=True, kw_only=True):
+    """The shell's recorder can no longer write the run's record: the core stops the arm
+    (RECORDER_FAILED), and the run ends."""
+
+    t: int
+    fault: RecorderFault
 
 
 class MoveEvent(msgspec.Struct, frozen=True, kw_only=True):
@@ -163,10 +182,11 @@ class ChunkEvent:
 Event = (
     StateEvent | ObservationEvent | PhaseEvent | ForceEvent | OodEvent | LinkEvent
     | HandshakeEvent | OperatorEvent | ControllerEvent | ClockSyncEvent | TickEvent | ChunkEvent
-    | MoveEvent | GripperEvent | InsertEvent | ComputedEvent
+    | MoveEvent | GripperEvent | InsertEvent | ComputedEvent | RecorderEvent
 )
 
 OPERATOR_ACTIONS = tuple(OperatorAction)
 CONTROLLER_STATUSES = tuple(ControllerStatus)
 LINK_STATUSES = tuple(LinkStatus)
+RECORDER_FAULTS = tuple(RecorderFault)
 REQUESTERS = ("fsm", "policy", "operator")

@@ -35,6 +35,7 @@ from kernel.core.events import (
     OodEvent,
     OperatorEvent,
     PhaseEvent,
+    RecorderEvent,
     StateEvent,
     TickEvent,
 )
@@ -65,6 +66,7 @@ _HANDLERS: dict[type, Callable[[CoreState, Any], None]] = {
     MoveEvent: authority.on_move,
     GripperEvent: authority.on_gripper,
     InsertEvent: authority.on_insert,
+    RecorderEvent: authority.on_recorder,
     TickEvent: lambda state, event: tick(state),
 }
 

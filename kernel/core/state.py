@@ -147,22 +147,24 @@ class CoreState:
         if self.watermarks is not None:
             self.watermarks.answered()
 
-    def fire(self, trigger: ReasonCode, immediate: bool = False) -> bool:
+    def fire(self, trigger: ReasonCode, immediate: bool = False,
+             detail: str | None = None) -> bool:
         """Raise a fallback trigger; apply and log the transition if one happens."""
         transition = self.fallback.fire(trigger, immediate)
         if transition is None:
             return False
-        self.apply(transition)
+        self.apply(transition, detail=detail)
         return True
 
-    def apply(self, transition: Transition, queue: QueueAction | None = None) -> None:
+    def apply(self, transition: Transition, queue: QueueAction | None = None,
+              detail: str | None = None) -> None:
         """Log a fallback transition and carry out its queue action and task mirroring."""
         card = MODES[transition.target]
         action = queue if queue is not None else card.queue
         self.emit(TransitionLine(
             t=self.t_ms, machine=Machine.FALLBACK, from_=transition.source, to=transition.target,
             trigger=transition.trigger, owner=card.owner, command=card.command,
-            queue=action, recovery=card.recovery,
+            queue=action, recovery=card.recovery, detail=detail,
         ))
         if action is QueueAction.NEW_EPOCH:
             self.new_epoch(transition.trigger)

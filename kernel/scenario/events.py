@@ -25,6 +25,7 @@ from kernel.core.events import (
     CONTROLLER_STATUSES,
     LINK_STATUSES,
     OPERATOR_ACTIONS,
+    RECORDER_FAULTS,
     REQUESTERS,
     ChunkEvent,
     ClockSyncEvent,
@@ -44,6 +45,8 @@ from kernel.core.events import (
     OperatorAction,
     OperatorEvent,
     PhaseEvent,
+    RecorderEvent,
+    RecorderFault,
     StateEvent,
     TickEvent,
 )
@@ -185,6 +188,10 @@ def _controller(t: int, item: Mapping[str, Any], where: Where, _: JointLimits) -
                            reason=reason)
 
 
+def _recorder(t: int, item: Mapping[str, Any], where: Where, _: JointLimits) -> Event:
+    return RecorderEvent(t=t, fault=RecorderFault(choice(item, "fault", where, RECORDER_FAULTS)))
+
+
 def _move(t: int, item: Mapping[str, Any], where: Where, _: JointLimits) -> Event:
     return MoveEvent(t=t, move_id=integer(item, "move_id", where, minimum=0),
                      target=tuple(vector(item.get("target"), where.at("target"))))
@@ -254,6 +261,7 @@ _PARSERS: dict[str, Parser] = {
     "handshake": _handshake,
     "operator": _operator,
     "controller": _controller,
+    "recorder": _recorder,
     "clock_sync": _clock_sync,
     "tick": _tick,
     "move": _move,

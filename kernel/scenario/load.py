@@ -5,10 +5,16 @@ A scenario has ``"format": "warden-scenario/1"`` and its control ticks are gener
 A journal's first line is the same header with ``"format": "warden-journal/1"``; every further
 line is one event, its ticks are recorded events (a replay runs exactly the ticks the live run
 ran), and it starts with no accepted session, as a live run does: the handshake is in it.
+
+A journal is written in whole lines, so the only damage a killed run can leave is an
+incomplete last line (no newline, not JSON). Such a line is dropped: the journal replays up to
+its last complete line, and :attr:`Scenario.cut` says which line was dropped. Any other broken
+line is an invalid file.
 """
 
 from __future__ import annotations
 
+import codecs
 import dataclasses
 import json
 from collections.abc import Iterator
@@ -21,7 +27,7 @@ from kernel.core.config import CoreConfig
 from kernel.core.events import TickEvent
 from kernel.scenario.bounds import TICKS_MAX, UNTIL_MAX_MS
 from kernel.scenario.config import build_config
-from kernel.scenario.document import check_document, parse_json, read_text
+from kernel.scenario.document import check_document, decoded, parse_json, read_bytes
 from kernel.scenario.events import Item, parse_events
 from kernel.scenario.fields import ScenarioError, Where, number, text
 
@@ -39,6 +45,9 @@ class Scenario:
     recorded_ticks: bool
     expect: list[dict[str, Any]] = field(default_factory=list)
     forbid: list[dict[str, Any]] = field(default_factory=list)
+    cut: int | None = None
+    """A journal whose last line was incomplete: the number of that line, dropped (the replay
+    covers the lines before it)."""
 
     def timeline(self) -> Iterator[Item]:
         """Events in order, with generated ticks after the events of the same instant."""
@@ -65,28 +74,61 @@ def load_scenario(path: str | Path) -> Scenario:
             valid scenario (unreadable, not UTF-8, not JSON, a value out of its bounds, ...).
     """
     name = str(path)
-    doc, lines = _parse(read_text(Path(path), name), name)
-    return _scenario(doc, lines, name)
+    data = read_bytes(Path(path), name)
+    try:
+        raw = decoded(data, name)
+    except ScenarioError:
+        raw = _before_cut_character(data, name)
+    doc, lines, cut = _parse(raw, name)
+    return dataclasses.replace(_scenario(doc, lines, name), cut=cut)
 
 
-def _parse(raw: str, name: str) -> tuple[Any, list[Any] | None]:
+def _before_cut_character(data: bytes, name: str) -> str:
+    """A journal cut inside a character of its last line (a multi-byte sequence left
+    incomplete at the very end): the text without that partial character (the line then reads
+    as incomplete). Any other byte that is not UTF-8 stays an error.
+
+    Raises:
+        ScenarioError: the file is not UTF-8 for another reason.
+    """
+    try:
+        return codecs.getincrementaldecoder("utf-8")().decode(data, final=False)
+    except UnicodeDecodeError:
+        return decoded(data, name)  # raises, naming the place
+
+
+def _parse(raw: str, name: str) -> tuple[Any, list[Any] | None, int | None]:
     try:
         doc = parse_json(raw, name)
     except json.JSONDecodeError as first_error:
-        lines = [line for line in raw.splitlines() if line.strip()]
+        lines = [(number_, line) for number_, line in enumerate(raw.splitlines(), start=1)
+                 if line.strip()]
         if len(lines) < 2:
             raise ScenarioError(f"{name}: not valid JSON: {first_error}") from None
-        parsed = []
-        for number_, line in enumerate(lines, start=1):
-            try:
-                parsed.append(parse_json(line, name, number_))
-            except json.JSONDecodeError as error:
-                raise ScenarioError(f"{name}: line {number_} is not valid JSON: {error}") from None
+        parsed, cut = _json_lines(lines, raw.endswith("\n"), name)
         check_document(parsed[0], Where(name, ""))
         check_document(parsed[1:], Where(name, "events"))
-        return parsed[0], parsed[1:]
+        return parsed[0], parsed[1:], cut
     check_document(doc, Where(name, ""))
-    return doc, None
+    return doc, None, None
+
+
+def _json_lines(lines: list[tuple[int, str]], terminated: bool,
+                name: str) -> tuple[list[Any], int | None]:
+    """Every line parsed; an unterminated last line that is not JSON is dropped as cut.
+
+    Raises:
+        ScenarioError: a line that is not JSON, other than a cut last line.
+    """
+    parsed = []
+    for index, (number_, line) in enumerate(lines):
+        try:
+            parsed.append(parse_json(line, name, number_))
+        except json.JSONDecodeError as error:
+            if index == len(lines) - 1 and not terminated and index >= 1:
+                return parsed, number_
+            raise ScenarioError(f"{name}: line {number_} is not valid JSON: {error}") from None
+    return parsed, None
 
 
 def _scenario(doc: Any, journal_events: list[Any] | None, name: str) -> Scenario:

@@ -2,13 +2,19 @@
 
 The control tick only appends already-encoded lines to in-memory buffers; every
 ``flush_interval_s`` the recorder task swaps the buffers out and queues them for its own writer
-thread (one write per file), so a slow or stalled disk delays the recorder, never the event loop
-the controller runs on. The writer never calls back into the loop: with ``run_in_executor``
-instead, the CANopen cell lost drive heartbeats at start-up in most runs on the 2-core test
-machine (the mechanism was not pinned down; this design does not show it). The buffers, queued
-batches included, are bounded: if the recorder falls that far behind, the overflow is counted as
-a gap and reported (a journal with a gap is not promoted as a replay of the run), and the run
-goes on holding the safety decisions in the decision log it could still write.
+thread, so a slow or stalled disk delays the recorder, never the event loop the controller runs
+on. The writer never calls back into the loop: with ``run_in_executor`` instead, the CANopen
+cell lost drive heartbeats at start-up in most runs on the 2-core test machine (the mechanism
+was not pinned down; this design does not show it). The buffers, queued batches included, are
+bounded: if the recorder falls that far behind, the overflow is counted as a gap and reported (a
+journal with a gap is not promoted as a replay of the run).
+
+A write that fails (a full, failing or read-only disk: :mod:`kernel.shell.record_file`) is not
+the recorder's to handle alone: it sets :attr:`Recorder.fault`, which the control loop turns
+into a ``recorder`` event for the core (RECORDER_FAILED: the core stops the arm) before the
+run ends. Nothing more is written in the files' normal course; what the run records from the
+failing batch on is kept and written, at :meth:`Recorder.close`, into the space each file keeps
+reserved, all of it or (if it does not fit) none, so both files stay whole prefixes of the run.
 """
 
 from __future__ import annotations
@@ -18,14 +24,15 @@ import json
 import os
 import queue
 import threading
+import time
 from collections.abc import Mapping
-from dataclasses import dataclass
-from pathlib import Path
-from typing import IO, Any
+from dataclasses import dataclass, field
+from typing import Any
 
-from kernel.core.events import Event
+from kernel.core.events import Event, RecorderFault
 from kernel.core.lines import Line, encode
 from kernel.journal import CommandRecord, command_line, event_record
+from kernel.shell.record_file import RecordFile, fault_of
 
 
 @dataclass
@@ -35,16 +42,20 @@ class RecorderStats:
     gaps: int = 0
     flushes: int = 0
     error: str | None = None
-    """The first write error (exception type and errno text); everything after it is a gap."""
-
-
-class RecorderError(RuntimeError):
-    """The journal or the decision log could not be written: the run's record is incomplete."""
+    """The first write error (file, exception type and errno text)."""
+    tail_written: bool | None = None
+    """After a failure: whether what the run recorded from then on fit into the reserve."""
 
 
 class Recorder:
+    """Buffers the run's record on the loop, writes it on a thread of its own.
+
+    Raises (constructor):
+        OSError: the journal's header line cannot be written.
+    """
+
     def __init__(
-        self, journal: IO[str] | None, decisions: IO[bytes] | None,
+        self, journal: RecordFile | None, decisions: RecordFile | None,
         head: Mapping[str, Any] | None = None, max_buffered: int = 200_000,
         flush_interval_s: float = 0.05,
     ) -> None:
@@ -54,15 +65,20 @@ class Recorder:
         self._max = max_buffered
         self.flush_interval_s = flush_interval_s
         self.stats = RecorderStats()
+        self.fault: RecorderFault | None = None
+        """Set (once, by the writer thread) when a write failed; read by the control loop."""
+        self._tail = _Tail()
+        self._handed_over_at = time.monotonic()
         self._batches: queue.SimpleQueue[_Batch | None] = queue.SimpleQueue()
         self._queued = 0  # items handed over and not yet written (the bound covers them too)
         self._queued_lock = threading.Lock()
-        self._failure: BaseException | None = None
+        if journal is not None and head is not None:
+            line = (json.dumps(dict(head), allow_nan=True) + "\n").encode()
+            journal.reserve_for(len(line))
+            journal.append(line)
         self._writer = threading.Thread(target=self._write_batches, name="warden-recorder",
                                         daemon=True)
         self._writer.start()
-        if journal is not None and head is not None:
-            journal.write(json.dumps(dict(head), allow_nan=True) + "\n")
 
     def event(self, event: Event) -> None:
         if self._journal is None:
@@ -93,17 +109,8 @@ class Recorder:
         self.stats.lines += len(lines)
 
     def hand_over(self) -> None:
-        """Pass what is buffered to the writer thread; never waits for the disk.
-
-        Raises:
-            RecorderError: an earlier write failed (the recorder task is critical: the run
-                ends, holding the arm, rather than go on with a record that has a hole).
-        """
-        if self._failure is not None:
-            self._count_gap(len(self._events) + len(self._lines))  # never to be written
-            self._events, self._lines = [], []
-            raise RecorderError(f"cannot write the run record: {self.stats.error}") from (
-                self._failure)
+        """Pass what is buffered to the writer thread; never waits for the disk."""
+        self._handed_over_at = time.monotonic()
         if self._events or self._lines:
             with self._queued_lock:
                 self._queued += len(self._events) + len(self._lines)
@@ -111,13 +118,16 @@ class Recorder:
             self._events, self._lines = [], []
             self.stats.flushes += 1
 
+    def hand_over_if_due(self) -> None:
+        """:meth:`hand_over` at most every ``flush_interval_s`` (a loop without the recorder
+        task, e.g. a lockstep run, calls this once a tick)."""
+        if time.monotonic() - self._handed_over_at >= self.flush_interval_s:
+            self.hand_over()
+
     def flush(self) -> None:
         """Write everything buffered so far and wait until it is on its way to disk (end of a
         run, lockstep runs)."""
-        try:
-            self.hand_over()
-        except RecorderError:
-            return  # nothing more will be written; the error is in stats
+        self.hand_over()
         written = threading.Event()
         self._batches.put(_Batch([], [], written))
         while not written.wait(0.5):
@@ -125,16 +135,24 @@ class Recorder:
                 return
 
     def close(self) -> None:
-        """Flush, then stop the writer thread; the files stay open (their owner closes them)."""
+        """Flush, then stop the writer thread (which writes a failed run's tail into the
+        reserve), then close the files. Safe to call twice."""
         if not self._writer.is_alive():
             return
         self.flush()
         self._batches.put(None)
         self._writer.join()
+        for record in (self._journal, self._decisions):
+            if record is not None:
+                try:
+                    record.close()
+                except OSError as error:
+                    self._failed(record, error)
 
     async def run(self, started: Any = None) -> None:
         """Hand the buffers over periodically until cancelled (the last hand-over is
-        :meth:`close`'s). Raises :class:`RecorderError` once a write has failed.
+        :meth:`close`'s). A write failure does not end this task: it reaches the core (see
+        :attr:`fault`), whose stop the run carries out before it ends.
 
         Nothing from the writer thread ever calls back into the event loop: the loop only
         puts batches on a queue, the thread only takes them off.
@@ -145,32 +163,77 @@ class Recorder:
             await asyncio.sleep(self.flush_interval_s)
             self.hand_over()
 
+    # -- the writer thread ----------------------------------------------------------------------
+
     def _write_batches(self) -> None:
         _ordinary_priority()
         while (batch := self._batches.get()) is not None:
             count = len(batch.events) + len(batch.lines)
             try:
-                if self._failure is None:
-                    self._write(batch)
+                parts = self._parts(batch)
+                if self.fault is None:
+                    self._write(parts)
                 else:
-                    self._count_gap(count)
-            except Exception as error:  # a full or failing disk: record it, never die
-                self._failure = error
-                self.stats.error = f"{type(error).__name__}: {error}"
-                self._count_gap(count)
+                    self._keep(parts)
             finally:
                 with self._queued_lock:
                     self._queued -= count
                 if batch.written is not None:
                     batch.written.set()
+        if self.fault is not None:
+            self._write_tail()
 
-    def _write(self, batch: _Batch) -> None:
+    def _parts(self, batch: _Batch) -> list[_Part]:
+        parts = []
         if self._journal is not None and batch.events:
-            self._journal.write("\n".join(batch.events) + "\n")
-            self._journal.flush()
+            data = ("\n".join(batch.events) + "\n").encode()
+            parts.append(_Part(self._journal, data, len(batch.events)))
         if self._decisions is not None and batch.lines:
-            self._decisions.write(b"\n".join(batch.lines) + b"\n")
-            self._decisions.flush()
+            parts.append(_Part(self._decisions, b"\n".join(batch.lines) + b"\n",
+                               len(batch.lines)))
+        return parts
+
+    def _write(self, parts: list[_Part]) -> None:
+        """Both files' space first, then their data: a batch that does not fit is written to
+        neither, and is the first part of the tail."""
+        for part in parts:
+            try:
+                part.file.reserve_for(len(part.data))
+            except OSError as error:
+                self._failed(part.file, error)
+                self._keep(parts)
+                return
+        for index, part in enumerate(parts):
+            try:
+                part.file.append(part.data)
+            except OSError as error:
+                self._failed(part.file, error)
+                self._keep(parts[index:])
+                return
+
+    def _keep(self, parts: list[_Part]) -> None:
+        for part in parts:
+            if not self._tail.add(part):
+                self._count_gap(part.count)
+
+    def _write_tail(self) -> None:
+        """After a failure: the rest of the run into the reserve, if all of it fits, in the
+        order it was recorded; the first part the disk refuses ends it (a part written after
+        a lost one would leave a hole, and the decision log never gets ahead of the journal)."""
+        writing = self.stats.tail_written = self._tail.fits()
+        for part in self._tail.parts:
+            if writing:
+                try:
+                    part.file.append(part.data)
+                    continue
+                except OSError:
+                    writing = False
+            self._count_gap(part.count)
+
+    def _failed(self, record: RecordFile, error: OSError) -> None:
+        if self.fault is None:
+            self.stats.error = f"{record.path.name}: {type(error).__name__}: {error}"
+            self.fault = fault_of(error)
 
     def _count_gap(self, count: int) -> None:
         with self._queued_lock:  # stats are also counted on the loop thread
@@ -185,19 +248,39 @@ class _Batch:
     """Set once this batch (and everything queued before it) has been written."""
 
 
+@dataclass(frozen=True, slots=True)
+class _Part:
+    file: RecordFile
+    data: bytes
+    count: int
+    """Records (events or lines) in ``data``."""
+
+
+@dataclass(slots=True)
+class _Tail:
+    """What a failed run records from its failing batch on, per file, in order."""
+
+    parts: list[_Part] = field(default_factory=list)
+    overflowed: bool = False
+    _size: dict[int, int] = field(default_factory=dict)
+
+    def add(self, part: _Part) -> bool:
+        """Keep ``part``; False once a file's tail has outgrown its reserve (nothing more of it
+        will be written: a tail with a hole would not be a record)."""
+        size = self._size.get(id(part.file), 0) + len(part.data)
+        if self.overflowed or size > part.file.reserved:
+            self.overflowed = True
+            return False
+        self._size[id(part.file)] = size
+        self.parts.append(part)
+        return True
+
+    def fits(self) -> bool:
+        return not self.overflowed
+
+
 def _ordinary_priority() -> None:
     """Disk writes never compete with a real-time control loop: whatever policy the creating
     thread had, the writer runs with the ordinary one (Linux applies this per thread)."""
     if os.sched_getscheduler(0) != os.SCHED_OTHER:
         os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
-
-
-def open_run_files(directory: Path, name: str) -> tuple[Path, IO[str], IO[bytes]]:
-    """A fresh run directory with ``journal.jsonl`` and ``decisions.jsonl``."""
-    directory.mkdir(parents=True, exist_ok=True)
-    index = 1 + max((int(p.name.rsplit("-", 1)[-1]) for p in directory.glob(f"{name}-*")
-                     if p.name.rsplit("-", 1)[-1].isdigit()), default=0)
-    run_dir = directory / f"{name}-{index:04d}"
-    run_dir.mkdir()
-    return (run_dir, (run_dir / "journal.jsonl").open("w", encoding="utf-8"),
-            (run_dir / "decisions.jsonl").open("wb"))

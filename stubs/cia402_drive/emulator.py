@@ -22,9 +22,7 @@ from __future__ import annotations
 
 import logging
 import math
-import os
 import select
-import socket
 import threading
 import time
 from collections.abc import Callable, Sequence
@@ -44,6 +42,7 @@ from stubs.cia402_drive.profile import (
     NMT_COB_ID,
     SYNC_COB_ID,
 )
+from stubs.cia402_drive.udp_bus import confine_to_host, fileno, widen_receive_buffer
 from stubs.plant.base import KinematicPlant, Plant
 
 log = logging.getLogger(__name__)
@@ -65,8 +64,6 @@ MAX_PROFILE_VELOCITY_RAD_S = 2 * math.pi
 """0x607F of a joint drive as built by default: a motor faster than any joint limit the shipped
 manifests set."""
 GRIPPER_MAX_VELOCITY_M_S = 0.15
-UDP_RECEIVE_BUFFER = 4 * 1024 * 1024
-"""Requested SO_RCVBUF; Linux caps it at net.core.rmem_max."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -142,6 +139,8 @@ class DriveEmulator:
                       **self._bus_options())
         try:
             widen_receive_buffer(bus)
+            if self.config.interface == "udp_multicast":
+                confine_to_host(bus, self.config.channel)
             network = canopen.Network(bus)
             network.NOTIFIER_CYCLE = 0.05  # bounds how long stop() waits for the reader thread
             self._add_drives(network)
@@ -150,7 +149,7 @@ class DriveEmulator:
             for cob_id in HEARTBEAT_COB_IDS:
                 network.subscribe(cob_id, self._on_heartbeat)
             self._network = network.connect()
-            self._fd = _fileno(bus)
+            self._fd = fileno(bus)
         except BaseException:
             bus.shutdown()
             raise
@@ -342,28 +341,3 @@ def encoders_for(node_ids: Sequence[int], counts_per_rev: int,
     directions = directions or [1] * len(node_ids)
     offsets = offsets or [0] * len(node_ids)
     return tuple(Encoder(counts_per_rev, d, o) for d, o in zip(directions, offsets, strict=True))
-
-
-
-def _fileno(bus: can.BusABC) -> int:
-    try:
-        return bus.fileno()
-    except NotImplementedError:
-        return -1
-
-
-def widen_receive_buffer(bus: can.BusABC, size: int = UDP_RECEIVE_BUFFER) -> None:
-    """Let a UDP-backed bus ride through a stall of this process without dropping frames.
-
-    On ``udp_multicast`` every process also receives its own frames back: six drives answering
-    a 500 Hz SYNC are some 10k datagrams/s, and the default receive buffer (~212 KB) overflows
-    after a pause of a few tens of milliseconds (a busy core, a GC pass), losing SDO requests
-    and RPDOs. Works on a duplicate of the bus's public ``fileno()``: same socket, no private
-    attributes. Buses without a file descriptor (``virtual``) are left as they are.
-    """
-    fd = _fileno(bus)
-    if fd < 0:
-        return
-    with socket.socket(fileno=os.dup(fd)) as sock:
-        if sock.type == socket.SOCK_DGRAM:
-            sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, size)

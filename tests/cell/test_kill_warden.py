@@ -34,6 +34,7 @@ from typing import Any
 
 import pytest
 
+from kernel.cli import main as cli_main
 from kernel.manifest import load_manifest
 from stubs.cell.emulated import LAUNCHERS
 from stubs.fault_control import inject
@@ -225,3 +226,7 @@ def test_killing_warden_leaves_the_arm_at_rest_within_the_bound(driver: str) -> 
               f"{bound * 1e3:.0f} ms)")
         cell.armed_as_documented(armed)
         assert seconds < bound and fired < bound
+        # What the killed run wrote replays, up to where the kill cut it (0: whole, 3: ends
+        # early), never a difference or a broken file.
+        (journal,) = (directory / "runs").glob("*/journal.jsonl")
+        assert cli_main(["replay", str(journal)]) in (0, 3)

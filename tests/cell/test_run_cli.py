@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 from pathlib import Path
 
@@ -10,6 +11,7 @@ import pytest
 from kernel.cli import main
 from kernel.cli_run import checked_manifest
 from tests.cell.harness import MANIFESTS
+from tests.filesystems import read_only_tmpfs
 
 BASE = (MANIFESTS / "sim-ur5e.toml").read_text()
 
@@ -172,6 +174,12 @@ BAD_VALUES = [
     (("clock_offset_ms = 137.0", "clock_offset_ms = 1e300"),
      "policy.clock_offset_ms: must be at most"),
     (("noise_rad = 0.0001", "noise_rad = nan"), "policy.noise_rad: must be a finite"),
+    # a launched reference server listens on loopback unless the manifest means otherwise
+    (('host = "127.0.0.1"', 'host = "0.0.0.0"'), "policy.host: '0.0.0.0' is not a loopback"),
+    (('host = "127.0.0.1"', 'host = "192.0.2.2"'), "policy.host: '192.0.2.2' is not a "
+                                                   "loopback"),
+    (('host = "127.0.0.1"', 'host = "robot-pc.local"'), "policy.host: 'robot-pc.local'"),
+    (('host = "127.0.0.1"', 'host = "0.0.0.0"\nexpose = 1'), "policy.expose: expected bool"),
     # the run's name names a directory
     (('name = "sim-ur5e"', 'name = "../../x"'), "name: '../../x' is not a safe run name"),
     (('name = "sim-ur5e"', 'name = ".hidden"'), "name: '.hidden' is not a safe run name"),
@@ -319,3 +327,42 @@ def test_a_virtual_clock_with_a_device_exits_2_before_it_starts(
 def test_every_shipped_manifest_is_within_the_bounds() -> None:
     for path in sorted(MANIFESTS.glob("*.toml")):
         checked_manifest(path)
+
+
+@pytest.mark.parametrize("place", ["/dev/null", "/proc", "/proc/self/fd", "read-only"])
+@pytest.mark.parametrize("given_by", ["option", "manifest"])
+@pytest.mark.usefixtures("nothing_starts")
+def test_a_journal_directory_that_cannot_hold_journals_exits_2_naming_the_key(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], place: str, given_by: str
+) -> None:
+    with contextlib.ExitStack() as stack:
+        directory = place if place != "read-only" else str(
+            stack.enter_context(read_only_tmpfs(tmp_path / "ro")))
+        path = tmp_path / "cell.toml"
+        argv = ["run", str(path), "--clock", "virtual", "--cycles", "1"]
+        if given_by == "option":
+            path.write_text(BASE)
+            argv += ["--journal-dir", directory]
+            key = "--journal-dir"
+        else:
+            path.write_text(BASE.replace('directory = "runs"', f'directory = "{directory}"', 1))
+            key = f"{path}: journal.directory"
+        assert main(argv) == 2
+        err = capsys.readouterr().err
+        assert f"{key}: {directory}: cannot keep run journals there" in err, err
+
+
+@pytest.mark.parametrize(("host", "expose"), [("127.0.0.2", False), ("localhost", False),
+                                              ("::1", False), ("0.0.0.0", True)])
+def test_a_reference_server_host_on_loopback_or_exposed_on_purpose_is_accepted(
+    tmp_path: Path, host: str, expose: bool
+) -> None:
+    path = tmp_path / "cell.toml"
+    path.write_text(BASE.replace('host = "127.0.0.1"', f'host = "{host}"\nexpose = '
+                                 f'{str(expose).lower()}', 1))
+    assert checked_manifest(path).policy.host == host
+    remote = BASE.replace('launch = true ', 'launch = false', 1).replace(
+        'host = "127.0.0.1"', 'host = "192.0.2.7"', 1).replace("port = 0 ", "port = 8765", 1)
+    path.write_text(remote)  # a server warden does not launch may be anywhere
+    assert checked_manifest(path).policy.host == "192.0.2.7"
+

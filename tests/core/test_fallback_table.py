@@ -55,7 +55,8 @@ class Expected:
 EXPECTED: dict[R, Expected] = {
     R.E_STOP: Expected(Mode.E_STOP, ALL - {Mode.E_STOP}),
     **{code: Expected(Mode.CONTROLLER_STOP, ALL - {Mode.E_STOP, Mode.CONTROLLER_STOP})
-       for code in (R.WATCHDOG, R.CONTROLLER_FAULT, R.CONTROLLER_REJECT, R.ENVELOPE)},
+       for code in (R.WATCHDOG, R.CONTROLLER_FAULT, R.CONTROLLER_REJECT, R.ENVELOPE,
+                    R.RECORDER_FAILED)},
     R.HUMAN_TAKEOVER: Expected(Mode.HUMAN_RECOVERY, ALL - {Mode.E_STOP, Mode.HUMAN_RECOVERY}),
     R.CONTACT_ANOMALY: Expected(Mode.CONTACT_FALLBACK, SOFT | {Mode.SAFE_HOLD}),
     **{code: Expected(Mode.SAFE_HOLD, SOFT)

@@ -5,7 +5,8 @@ Entry points driven:
 
 - scenarios and journals: ``kernel.cli.main(["replay", FILE])``, the whole command (load,
   replay on the virtual clock, output): exit 0, or 2 naming the file. A journal may also exit 1,
-  the replay's verdict that a mutated journal no longer reproduces its recorded commands.
+  the replay's verdict that a mutated journal no longer reproduces its recorded commands, or 3,
+  a journal whose last line damage left incomplete (replayed up to it).
 - manifests: :func:`kernel.cli_run.checked_manifest`, which is everything ``warden run`` does
   before it starts a device, an emulator or a server (manifest loader, ``[task]`` and robot
   model checks, the clock against the driver); running a whole cell per example is not a
@@ -116,7 +117,9 @@ def test_mutated_journals_replay_or_exit_2(workdir: Path, journal: list[Any],
     path = workdir / "journal.jsonl"
     path.write_bytes(raw)
     code, err = run_cli(["replay", str(path)])
-    _check_exit(code, err, path, {0, 1, 2})
+    _check_exit(code, err, path, {0, 1, 2, 3})
+    if code == 3:
+        assert "is incomplete (the run was cut off while writing it)" in err
 
 
 def _damaged(raw: bytes) -> st.SearchStrategy[bytes]:

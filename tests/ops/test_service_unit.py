@@ -43,7 +43,7 @@ def test_notify_and_watchdog() -> None:
     assert _one("Restart") == "on-failure"
     assert int(_one("RestartSec")) >= 1
     assert int(_one("StartLimitBurst")) >= 1 and int(_one("StartLimitIntervalSec")) > 0
-    assert set(_one("RestartPreventExitStatus").split()) == {"1", "2"}
+    assert set(_one("RestartPreventExitStatus").split()) == {"1", "2", "3"}
 
 
 def test_realtime_is_permitted_without_root() -> None:

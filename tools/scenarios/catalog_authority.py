@@ -105,6 +105,30 @@ def watchdog_state_timeout() -> ScenarioSpec:
     )
 
 
+def recorder_failed() -> ScenarioSpec:
+    return ScenarioSpec(
+        name="recorder_failed",
+        description="The shell can no longer write the run's record (a full disk): the core "
+                    "stops the arm (RECORDER_FAILED -> CONTROLLER_STOP) from the tick of that "
+                    "instant on, and the queued actions never run. A later failure while "
+                    "E_STOP already stops the arm changes nothing and is logged as such.",
+        events=[*_running(), event(40, "recorder", fault="no_space"),
+                event(60, "operator", action="estop"),
+                event(70, "recorder", fault="io_error")],
+        until=80,
+        expect=[
+            {"kind": "transition", "machine": "fallback", "from": "RUNNING",
+             "to": "CONTROLLER_STOP", "trigger": "RECORDER_FAILED", "t": 40,
+             "detail": "the run's record cannot be written: no_space"},
+            {"kind": "tick", "t": 40, "command": "stop", "owner": "safety",
+             "reason": "RECORDER_FAILED"},
+            {"kind": "transition", "machine": "fallback", "from": "E_STOP", "to": "E_STOP",
+             "trigger": "RECORDER_FAILED", "accepted": False, "t": 70},
+        ],
+        forbid=[{"kind": "tick", "t_min": 40, "sent.chunk_id": "C1"}],
+    )
+
+
 def human_takeover_and_release() -> ScenarioSpec:
     return ScenarioSpec(
         name="human_takeover_and_release",
@@ -219,5 +243,6 @@ def policy_cannot_authorize() -> ScenarioSpec:
 
 
 SCENARIOS = [ood_safe_hold, contact_anomaly_fallback, controller_reject_and_recovery,
-             invalid_feedback_fault, watchdog_state_timeout, human_takeover_and_release,
-             estop_wins_everywhere, guard_failed_missing_evidence, policy_cannot_authorize]
+             invalid_feedback_fault, watchdog_state_timeout, recorder_failed,
+             human_takeover_and_release, estop_wins_everywhere, guard_failed_missing_evidence,
+             policy_cannot_authorize]

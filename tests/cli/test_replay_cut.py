@@ -1,0 +1,128 @@
+"""``warden replay`` on a record cut off mid-write (a run killed with SIGKILL while writing):
+the incomplete last line is dropped, named on stderr, and everything before it replays and is
+compared (exit 3: the record is incomplete); damage anywhere else is still invalid input."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import pytest
+
+from kernel.cli import main
+
+_Capture = pytest.CaptureFixture[str]
+
+
+@pytest.fixture(scope="module")
+def recorded(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A real run's directory: ``warden run --clock virtual --cycles 1``."""
+    root = tmp_path_factory.mktemp("runs")
+    assert main(["run", "--clock", "virtual", "--cycles", "1", "--journal-dir", str(root)]) == 0
+    (directory,) = root.iterdir()
+    return directory
+
+
+@pytest.fixture
+def run_copy(recorded: Path, tmp_path: Path) -> Path:
+    copy = tmp_path / "run"
+    shutil.copytree(recorded, copy)
+    return copy
+
+
+def _cut(path: Path, fraction: float) -> int:
+    """Cut the file inside a line (never on a line boundary); the number of that line."""
+    data = path.read_bytes()
+    at = int(len(data) * fraction)
+    while data[at - 1:at] == b"\n" or data[at:at + 1] == b"\n":
+        at += 1
+    path.write_bytes(data[:at])
+    return data[:at].count(b"\n") + 1
+
+
+def test_a_complete_run_replays_identically(run_copy: Path, capsys: _Capture) -> None:
+    assert main(["replay", str(run_copy / "journal.jsonl")]) == 0
+    assert "identical: " in capsys.readouterr().err
+
+
+def test_a_journal_cut_mid_line_replays_up_to_the_cut(run_copy: Path, capsys: _Capture) -> None:
+    journal = run_copy / "journal.jsonl"
+    line = _cut(journal, 0.5)
+    assert main(["replay", str(journal)]) == 3
+    out, err = capsys.readouterr()
+    assert f"{journal}: line {line} is incomplete" in err
+    assert f"replaying lines 1 to {line - 1}" in err
+    assert "identical as far as the record goes" in err and "record is incomplete" in err
+    replayed = out.encode()
+    recorded = (run_copy / "decisions.jsonl").read_bytes()
+    assert replayed and recorded.startswith(replayed)  # the prefix, byte for byte
+    assert len(replayed) < len(recorded) // 2 + len(recorded) // 4
+
+
+def test_a_decision_log_cut_mid_line_is_compared_up_to_the_cut(run_copy: Path,
+                                                               capsys: _Capture) -> None:
+    decisions = run_copy / "decisions.jsonl"
+    line = _cut(decisions, 0.7)
+    assert main(["replay", str(run_copy / "journal.jsonl")]) == 3
+    err = capsys.readouterr().err
+    assert f"{decisions}: line {line} is incomplete" in err
+    assert f"the {line - 1} decision lines both files hold" in err
+
+
+def test_a_cut_journal_that_differs_before_the_cut_is_a_difference(run_copy: Path,
+                                                                    capsys: _Capture) -> None:
+    _cut(run_copy / "journal.jsonl", 0.5)
+    decisions = run_copy / "decisions.jsonl"
+    lines = decisions.read_bytes().splitlines(keepends=True)
+    lines[10] = lines[10].replace(b'"t":', b'"t": ', 1)
+    decisions.write_bytes(b"".join(lines))
+    assert main(["replay", str(run_copy / "journal.jsonl")]) == 1
+    assert "first difference in decisions.jsonl line 11" in capsys.readouterr().err
+
+
+def test_a_broken_line_before_the_last_is_invalid_input(run_copy: Path,
+                                                        capsys: _Capture) -> None:
+    journal = run_copy / "journal.jsonl"
+    lines = journal.read_bytes().splitlines(keepends=True)
+    lines[5] = lines[5][: len(lines[5]) // 2] + b"\n"  # damage the cut cannot produce
+    journal.write_bytes(b"".join(lines[:100]) + lines[100][:20])
+    assert main(["replay", str(journal)]) == 2
+    assert "line 6 is not valid JSON" in capsys.readouterr().err
+
+
+def test_a_cut_last_line_that_ends_in_its_newline_is_damage(run_copy: Path,
+                                                            capsys: _Capture) -> None:
+    journal = run_copy / "journal.jsonl"
+    lines = journal.read_bytes().splitlines(keepends=True)
+    journal.write_bytes(b"".join(lines[:100]) + lines[100][:20] + b"\n")
+    assert main(["replay", str(journal)]) == 2
+    assert "line 101 is not valid JSON" in capsys.readouterr().err
+
+
+def test_a_line_cut_inside_a_character_is_a_cut(run_copy: Path, capsys: _Capture) -> None:
+    journal = run_copy / "journal.jsonl"
+    lines = journal.read_bytes().splitlines(keepends=True)
+    cut_inside_e_acute = '{"t": 200, "kind": "observation", "observation_id": "é'.encode()[:-1]
+    journal.write_bytes(b"".join(lines[:100]) + cut_inside_e_acute)
+    assert main(["replay", str(journal)]) == 3
+    assert f"{journal}: line 101 is incomplete" in capsys.readouterr().err
+
+
+def test_a_decision_log_that_stops_at_a_line_boundary_is_incomplete(run_copy: Path,
+                                                                    capsys: _Capture) -> None:
+    """A run killed between writing a batch to its journal and to its decision log."""
+    decisions = run_copy / "decisions.jsonl"
+    lines = decisions.read_bytes().splitlines(keepends=True)
+    decisions.write_bytes(b"".join(lines[:-40]))
+    assert main(["replay", str(run_copy / "journal.jsonl")]) == 3
+    err = capsys.readouterr().err
+    assert f"ends after {len(lines) - 40} of the {len(lines)} lines replayed" in err
+
+
+def test_a_decision_log_longer_than_its_whole_journal_is_a_difference(run_copy: Path,
+                                                                      capsys: _Capture) -> None:
+    decisions = run_copy / "decisions.jsonl"
+    lines = decisions.read_bytes().splitlines(keepends=True)
+    decisions.write_bytes(b"".join(lines + lines[-1:]))
+    assert main(["replay", str(run_copy / "journal.jsonl")]) == 1
+    assert f"{len(lines) + 1} lines recorded, {len(lines)} replayed" in capsys.readouterr().err
