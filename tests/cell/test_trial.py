@@ -71,7 +71,7 @@ def _refused(done: subprocess.CompletedProcess[str], tmp: Path, *words: str) -> 
     for word in words:
         assert word in message, message
     assert "Traceback" not in done.stderr
-    assert not (tmp / "runs").exists(), "a refused trial wrote a journal"
+    assert not list(tmp.glob("runs/*")), "a refused trial wrote a journal"
     return message
 
 

@@ -37,11 +37,15 @@ TOOL = "tool_digital_output"
 PATIENT_WATCHDOG = 2500
 """Control periods (5 s): these tests pause between writes, which the kernel never does; the
 watchdog's own tests are in test_ur_watchdog.py."""
+PATIENT_STALL = 200
+"""RTDE periods (0.4 s, under the 0.5 s call timeout): one driver serves the whole module, and
+an emulator starved for 0.1 s on a loaded 2-core test machine must not fault it for every
+later test; stall detection has its own tests (test_ur_tables.py, test_ur_link_loss.py)."""
 
 
 def gripper_settings(host: str, **extra: Any) -> URSettings:
     return URSettings(host=host, gripper_output=0, **{"watchdog_periods": PATIENT_WATCHDOG,
-                                                      **extra})
+                                                      "stall_periods": PATIENT_STALL, **extra})
 
 
 def io_state(host: str, control_port: int) -> dict[str, Any]:
