@@ -129,11 +129,9 @@ def build_link(settings: CiA402Settings) -> Link:
     Raises:
         DriverInitError: unknown interface, unreadable EDS, or a bus that does not open.
     """
-    _check_interface(settings)
     eds = _eds_path(settings)
-    bus = _open_bus(settings)
+    bus = open_bus(settings)
     try:
-        widen_receive_buffer(cast(CanBus, bus))
         network = cast(Network, canopen.Network(bus))
         nodes = tuple(_add_node(network, node_id, eds, settings)
                       for node_id in settings.drive_ids)
@@ -142,6 +140,27 @@ def build_link(settings: CiA402Settings) -> Link:
         raise DriverInitError(settings.name, f"cannot load the object dictionary {eds}: "
                               f"{error}") from error
     return Link(settings, cast(CanBus, bus), network, nodes)
+
+
+def open_bus(settings: CiA402Settings) -> can.BusABC:
+    """The CAN bus the settings name, opened as the driver opens it (receive buffer widened).
+
+    The one way warden's processes open this bus: the driver here, and the safety monitor's
+    listening node (``kernel/safety/canopen.py``), which must reach the very bus warden's
+    drives are on.
+
+    Raises:
+        DriverInitError: unknown interface, or a bus that does not open.
+    """
+    _check_interface(settings)
+    bus = _open_bus(settings)
+    try:
+        widen_receive_buffer(cast(CanBus, bus))
+    except OSError as error:
+        bus.shutdown()
+        raise DriverInitError(settings.name, f"cannot size the receive buffer of the CAN bus "
+                              f"({settings.describe_bus()}): {error}") from error
+    return bus
 
 
 def widen_receive_buffer(bus: CanBus, size: int = UDP_RECEIVE_BUFFER) -> None:
