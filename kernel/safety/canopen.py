@@ -145,7 +145,8 @@ class CiA402Watch:
     def stop(self) -> StopResult:
         """NMT stop to every drive, then up to ``confirm_s`` for each one's heartbeat to say
         STOPPED (done only then: NMT itself is never acknowledged)."""
-        if self._bus is None:
+        if self._bus is None or self._bus_problem is not None:
+            self.close()  # a bus that failed is opened again: the stop may get through
             try:
                 self.connect()
             except DeviceUnreachable as error:

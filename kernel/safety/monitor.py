@@ -180,8 +180,11 @@ class Monitor:
             log.info("safety breach cleared", was=sorted(previous))
 
     def _still_moving(self, sample: Sample | None) -> bool:
-        # Without a sample nobody can tell: a device the monitor lost may be moving.
-        return sample is None or sample.fastest > self._moving
+        if sample is None:
+            # A device the monitor lost may be moving unseen; one that is not lost and gives
+            # nothing to read (CiA 402 drives out of OPERATIONAL) takes no setpoint.
+            return self._device_problem is not None or self._blind_problem is not None
+        return sample.fastest > self._moving
 
     def _restop_due(self, now: int) -> bool:
         last = self.stops[-1].at_ns if self.stops else None

@@ -290,3 +290,22 @@ def test_quiet_after_the_monitors_own_stop_in_that_run_is_not_a_loss(
         clock.advance(4)
         monitor.check()
     assert watch.stops == 1 and monitor.status()["ok"]
+
+
+def test_nothing_to_read_is_not_stopped_again_but_a_lost_device_is(
+        receiver: HeartbeatReceiver, clock: Clock) -> None:
+    watch = ScriptedWatch()
+    monitor = _monitor(watch, receiver, clock)
+    _beat(receiver, clock, 0)
+    monitor.check()
+    watch.reading = None  # type: ignore[assignment]  # drives that take no setpoint
+    clock.advance(SETTINGS.heartbeat_timeout_ms + 4)  # and warden hangs
+    for _ in range(500):
+        monitor.check()
+        clock.advance(4)
+    assert watch.stops == 1
+    watch.reading = DeviceLost("no TPDO for 300 ms")  # now the device may move unseen
+    for _ in range(round(SETTINGS.restop_interval_ms / 4) + 1):
+        monitor.check()
+        clock.advance(4)
+    assert watch.stops == 3  # the new breach at once, then again one interval later
