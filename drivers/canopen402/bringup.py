@@ -22,7 +22,10 @@ from drivers.canopen402.tables import (
     CSP_MODE_NAME,
     DEVICE_PROFILE_402,
     EMCY_NAMES,
+    OBJECT_BYTES,
     QUICK_STOP_HOLD,
+    RPDO_LAYOUT,
+    TPDO_LAYOUT,
     Command,
     DriveState,
     Index,
@@ -35,11 +38,6 @@ from drivers.canopen402.units import JointScale
 SYNCHRONOUS = 1
 """PDO transmission type: RPDO applied at, TPDO sent on, every SYNC."""
 
-RPDO_LAYOUT = ((Index.CONTROLWORD, Index.TARGET_POSITION, Index.MODES_OF_OPERATION),)
-TPDO_LAYOUT = (
-    (Index.STATUSWORD, Index.POSITION_ACTUAL, Index.TORQUE_ACTUAL),
-    (Index.VELOCITY_ACTUAL, Index.MODES_DISPLAY),
-)
 FAULT_RESET_TIMEOUT_S = 0.5
 
 
@@ -189,13 +187,6 @@ def bus_load(drives: int, period_s: float, bitrate: int,
 
 def _layout_bytes(indices: tuple[Index, ...]) -> int:
     return sum(OBJECT_BYTES[index] for index in indices)
-
-
-OBJECT_BYTES = {
-    Index.CONTROLWORD: 2, Index.TARGET_POSITION: 4, Index.MODES_OF_OPERATION: 1,
-    Index.STATUSWORD: 2, Index.POSITION_ACTUAL: 4, Index.TORQUE_ACTUAL: 2,
-    Index.VELOCITY_ACTUAL: 4, Index.MODES_DISPLAY: 1,
-}
 
 
 def check_bus_load(settings: CiA402Settings, period_s: float) -> None:

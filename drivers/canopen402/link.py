@@ -126,17 +126,8 @@ def build_link(settings: CiA402Settings) -> Link:
     Raises:
         DriverInitError: unknown interface, unreadable EDS, or a bus that does not open.
     """
-    _check_interface(settings)
     eds = _eds_path(settings)
-    bus = _open_bus(settings)
-    try:
-        widen_receive_buffer(cast(CanBus, bus))
-        if settings.interface == "udp_multicast":
-            confine_to_host(cast(CanBus, bus), settings.channel)
-    except (OSError, ValueError) as error:
-        bus.shutdown()
-        raise DriverInitError(settings.name, f"cannot keep the udp_multicast bus on this host "
-                              f"({settings.describe_bus()}): {error}") from error
+    bus = open_bus(settings)
     try:
         network = cast(Network, canopen.Network(bus))
         nodes = tuple(_add_node(network, node_id, eds, settings)
@@ -146,6 +137,31 @@ def build_link(settings: CiA402Settings) -> Link:
         raise DriverInitError(settings.name, f"cannot load the object dictionary {eds}: "
                               f"{error}") from error
     return Link(settings, cast(CanBus, bus), network, nodes)
+
+
+def open_bus(settings: CiA402Settings) -> can.BusABC:
+    """The CAN bus the settings name, opened as the driver opens it: receive buffer widened, and
+    a ``udp_multicast`` simulation bus kept on this host (``udp_bus.confine_to_host``).
+
+    The one way warden's processes open this bus: the driver here, and the safety monitor's
+    listening node (``kernel/safety/canopen.py``), which must reach the very bus warden's
+    drives are on.
+
+    Raises:
+        DriverInitError: unknown interface, or a bus that does not open or cannot be kept on
+            this host.
+    """
+    _check_interface(settings)
+    bus = _open_bus(settings)
+    try:
+        widen_receive_buffer(cast(CanBus, bus))
+        if settings.interface == "udp_multicast":
+            confine_to_host(cast(CanBus, bus), settings.channel)
+    except (OSError, ValueError) as error:
+        bus.shutdown()
+        raise DriverInitError(settings.name, f"cannot keep the udp_multicast bus on this host "
+                              f"({settings.describe_bus()}): {error}") from error
+    return bus
 
 
 def _check_interface(settings: CiA402Settings) -> None:

@@ -8,6 +8,7 @@ canopen's own ``State402`` masks and transition commands.
 
 from __future__ import annotations
 
+import struct
 from enum import IntEnum, StrEnum
 from pathlib import Path
 
@@ -172,3 +173,50 @@ EMCY_NAMES: dict[int, str] = {
     0x8700: "SYNC controller error",
     0xFF00: "manufacturer-specific fault",
 }
+
+
+# -- what goes over the bus --------------------------------------------------------------------
+
+HEARTBEAT_COB_BASE = 0x700
+"""Heartbeat (and boot-up) of node n: COB-ID 0x700 + n (CiA 301)."""
+EMCY_COB_BASE = 0x080
+"""EMCY of node n: COB-ID 0x080 + n (CiA 301, predefined connection set)."""
+NMT_COB_ID = 0x000
+TPDO_COB_BASE = (0x180, 0x280, 0x380, 0x480)
+"""TPDO 1-4 of node n: base + n (CiA 301, predefined connection set). The driver keeps the
+COB-ID a drive reports for each TPDO it maps (``bringup.map_pdos``), which on a drive in its
+predefined connection set, as shipped and as the emulator's, is this."""
+
+
+class NmtCommand(IntEnum):
+    """Byte 0 of an NMT node-control frame (COB-ID 0x000; byte 1: node id, 0 for all)."""
+
+    START = 0x01
+    STOP = 0x02
+    ENTER_PRE_OPERATIONAL = 0x80
+    RESET_NODE = 0x81
+    RESET_COMMUNICATION = 0x82
+
+
+PDO_FORMATS: dict[Index, str] = {
+    Index.CONTROLWORD: "H", Index.TARGET_POSITION: "i", Index.MODES_OF_OPERATION: "b",
+    Index.STATUSWORD: "H", Index.POSITION_ACTUAL: "i", Index.TORQUE_ACTUAL: "h",
+    Index.VELOCITY_ACTUAL: "i", Index.MODES_DISPLAY: "b",
+}
+"""``struct`` code of each object the driver maps, from its EDS data type (UNSIGNED16,
+INTEGER32, INTEGER8, INTEGER16); PDO data is little-endian (CiA 301)."""
+OBJECT_BYTES = {index: struct.calcsize(code) for index, code in PDO_FORMATS.items()}
+
+RPDO_LAYOUT = ((Index.CONTROLWORD, Index.TARGET_POSITION, Index.MODES_OF_OPERATION),)
+TPDO_LAYOUT = (
+    (Index.STATUSWORD, Index.POSITION_ACTUAL, Index.TORQUE_ACTUAL),
+    (Index.VELOCITY_ACTUAL, Index.MODES_DISPLAY),
+)
+"""The PDOs the driver maps on every drive at configure (``bringup.map_pdos``): RPDO1, and
+TPDO1 and TPDO2, all synchronous. Whoever reads a drive's TPDOs (the safety monitor's listener)
+decodes them with this layout."""
+
+
+def pdo_struct(layout: tuple[Index, ...]) -> struct.Struct:
+    """The encoding of one PDO with this layout, objects packed in order."""
+    return struct.Struct("<" + "".join(PDO_FORMATS[index] for index in layout))

@@ -36,9 +36,8 @@ import can
 from drivers.base import DriverIOError
 from drivers.canopen402._sdk import Network, Node402
 from drivers.canopen402.settings import CiA402Settings
-from drivers.canopen402.tables import AbortConnection, Index, NmtState
+from drivers.canopen402.tables import HEARTBEAT_COB_BASE, AbortConnection, Index, NmtState
 
-HEARTBEAT_COB_BASE = 0x700
 CONSUMER_ENTRY = 1
 """The sub-index of 0x1016 warden uses: the first (a drive has at least one)."""
 JOINT_REACTION = AbortConnection.QUICK_STOP

@@ -4,6 +4,7 @@ monitor").
 A process of its own, beside warden: its own connection to the device where the device allows
 a second one, its own stop path, its own checks of joints, speeds and wrist force against the
 manifest's limits, and warden's heartbeat. None of warden's core, gates, motion layer or
-drivers runs in it; it reads the manifest with warden's loader (the very limits warden was
-given).
+driver control code runs in it (the CiA 402 listener takes the driver's settings, bus opening,
+PDO mapping and unit conversion: data and arithmetic); it reads the manifest with warden's
+loader (the very limits warden was given).
 """

@@ -10,9 +10,8 @@ allows one) and its stop path. One per driver name (:data:`WATCHES`):
 - ``dynamixel``: none. A serial bus has one master, and that is warden; the servos' own Bus
   Watchdog is the stop path, and the monitor only watches warden's heartbeat and reports
   (:class:`HeartbeatOnly`);
-- ``canopen402``: not yet. The design is a CANopen listener on the same bus (a node that
-  receives the drives' TPDOs, as any node may) with NMT stop or a quick stop as its stop path;
-  a manifest for it is refused until that exists.
+- ``canopen402``: a listening node of its own on the drives' CAN bus (their TPDOs, heartbeats
+  and EMCYs) and NMT *Stop remote node* to each drive (:mod:`kernel.safety.canopen`).
 """
 
 from __future__ import annotations
@@ -61,7 +60,10 @@ class DeviceWatch(Protocol):
         ...
 
     def sample(self) -> Sample | None:
-        """The newest reading (None: this watch reads no device).
+        """The newest reading; None: nothing to read now (a watch that reads no device, or CiA
+        402 drives that exchange no process data). A watch that can stop must read while warden
+        runs: the monitor counts None for longer than ``device_timeout_ms`` while warden's
+        heartbeat is alive as the device lost, unless it stopped the device in that run.
 
         Raises:
             DeviceLost: no fresh data within ``device_timeout_ms``, or the link is down.
@@ -121,11 +123,9 @@ def _dynamixel(manifest: Manifest, settings: SafetySettings) -> DeviceWatch:
 
 
 def _canopen(manifest: Manifest, settings: SafetySettings) -> DeviceWatch:
-    raise DeviceUnreachable(
-        f"{manifest.path}: driver.name: the safety monitor has no CANopen listener yet (a "
-        "node that listens to the drives' TPDOs, with NMT stop or quick stop as its stop "
-        "path); a canopen402 cell has no independent monitor: see docs/operations.md, "
-        "'Safety monitor'")
+    from kernel.safety.canopen import CiA402Watch  # imports canopen: only for a CiA 402 cell
+
+    return CiA402Watch.from_manifest(manifest, settings)
 
 
 def _ur(manifest: Manifest, settings: SafetySettings) -> DeviceWatch:

@@ -65,6 +65,10 @@ class Monitor:
         self._sample: Sample | None = None
         self._findings: list[Finding] = []
         self._device_problem: str | None = None
+        self._blind_since_ns: int | None = None
+        self._blind_problem: str | None = None
+        self._stopped_session: int | None = None
+        """The warden run (heartbeat session) in which the monitor last stopped the device."""
         self._stop_path_problem: str | None = None
         self._next_probe_ns = self._next_reconnect_ns = 0
         self._judge_motion_from_ns = clock() + settings.heartbeat_timeout_ns
@@ -93,6 +97,7 @@ class Monitor:
         sample, lost = self._read(now)
         if lost and self.watch.lives_in_warden and self.heartbeat.state(now) is Pulse.NONE:
             lost = None  # no warden run, so no simulated world: nothing there can move
+        lost = lost or self._blind(sample, now)
         findings = [lost] if lost else []
         if sample is not None:
             findings += breaches(sample, self.limits)
@@ -121,6 +126,27 @@ class Monitor:
             self._device_problem = str(error)
             self._next_reconnect_ns = now + RECONNECT_EVERY_NS
             return None, Finding(Breach.DEVICE_LOST, str(error))
+
+    def _blind(self, sample: Sample | None, now: int) -> Finding | None:
+        """A watch with its own connection that reads nothing while warden runs is as good as
+        lost (a CiA 402 listener on the wrong bus hears nothing, and silence alone is idle
+        drives to it); after the monitor's own stop in this run, quiet is what it asked for."""
+        current = self.heartbeat.current
+        if sample is not None or not self.watch.can_stop or current is None or (
+                self.heartbeat.state(now) is not Pulse.ALIVE
+                or self._stopped_session == current.session):
+            self._blind_since_ns = self._blind_problem = None
+            return None
+        if self._blind_since_ns is None:
+            self._blind_since_ns = now
+        blind_ms = (now - self._blind_since_ns) / 1e6
+        if blind_ms <= self.settings.device_timeout_ms:
+            return None
+        self._blind_problem = (
+            f"warden (pid {current.pid}) runs but the device gave the monitor nothing to read "
+            f"for {blind_ms:.0f} ms (device_timeout_ms {self.settings.device_timeout_ms:g}): "
+            "check that the manifest names the device warden drives")
+        return Finding(Breach.DEVICE_LOST, self._blind_problem)
 
     def _heartbeat_findings(self, sample: Sample | None, now: int) -> list[Finding]:
         pulse = self.heartbeat.state(now)
@@ -154,8 +180,11 @@ class Monitor:
             log.info("safety breach cleared", was=sorted(previous))
 
     def _still_moving(self, sample: Sample | None) -> bool:
-        # Without a sample nobody can tell: a device the monitor lost may be moving.
-        return sample is None or sample.fastest > self._moving
+        if sample is None:
+            # A device the monitor lost may be moving unseen; one that is not lost and gives
+            # nothing to read (CiA 402 drives out of OPERATIONAL) takes no setpoint.
+            return self._device_problem is not None or self._blind_problem is not None
+        return sample.fastest > self._moving
 
     def _restop_due(self, now: int) -> bool:
         last = self.stops[-1].at_ns if self.stops else None
@@ -165,6 +194,8 @@ class Monitor:
     def _stop(self, findings: list[Finding], now: int, repeated: bool) -> None:
         started = time.perf_counter()
         result = self.watch.stop()
+        current = self.heartbeat.current
+        self._stopped_session = None if current is None else current.session
         took = (time.perf_counter() - started) * 1e3
         record = StopRecord(now, tuple(map(str, findings)), result, round(took, 3), repeated)
         quiet = repeated and not result.done and bool(self.stops) and not (
@@ -199,7 +230,7 @@ class Monitor:
         now = self.clock()
         with self.lock:
             last, sample, findings = self._last_check_ns, self._sample, list(self._findings)
-            problem = self._device_problem or self._stop_path_problem
+            problem = self._device_problem or self._blind_problem or self._stop_path_problem
             stop = self.stops[-1] if self.stops else None
             checks, count = self.checks, self.stop_count
         watching = last is not None and now - last <= 3 * self._period_ns + WATCHING_SLACK_NS

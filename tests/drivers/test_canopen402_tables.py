@@ -3,6 +3,8 @@ against canopen's own tables, and the emulated state machine against canopen's t
 
 from __future__ import annotations
 
+import struct
+
 import pytest
 from canopen.objectdictionary import ODVariable
 from canopen.profiles.p402 import State402
@@ -11,7 +13,15 @@ from drivers.base import DriverInitError
 from drivers.canopen402.bringup import bus_load, check_bus_load, frame_bits, interpolation_period
 from drivers.canopen402.link import _parse_eds, _variables, load_object_dictionary
 from drivers.canopen402.settings import CiA402Settings
-from drivers.canopen402.tables import DEFAULT_EDS, STATE_BITS, Command, DriveState, decode_state
+from drivers.canopen402.tables import (
+    DEFAULT_EDS,
+    PDO_FORMATS,
+    STATE_BITS,
+    Command,
+    DriveState,
+    Index,
+    decode_state,
+)
 from drivers.settings import SettingsError
 from stubs.cia402_drive.profile import STATE_STATUS, PowerState, StatusBit
 from stubs.cia402_drive.state_machine import PowerStateMachine
@@ -150,3 +160,15 @@ def test_bad_settings_name_the_key(change: dict[str, object], message: str) -> N
              "counts_per_rev": [4096, 4096], **change}
     with pytest.raises(SettingsError, match=message):
         CiA402Settings.from_mapping(table)
+
+
+@pytest.mark.parametrize("index", list(PDO_FORMATS))
+def test_each_mapped_object_is_encoded_as_the_eds_types_it(index: Index) -> None:
+    """What a PDO listener (the safety monitor's) decodes is what the drives' EDS says."""
+    variable = load_object_dictionary(DEFAULT_EDS)[index]
+    assert isinstance(variable, ODVariable)
+    eds = variable.STRUCT_TYPES[variable.data_type]
+    ours = struct.Struct("<" + PDO_FORMATS[index])
+    assert ours.size == eds.size
+    for data in (b"\xff" * ours.size, b"\x01" + b"\x80" * (ours.size - 1)):  # sign, order
+        assert ours.unpack(data) == eds.unpack(data)

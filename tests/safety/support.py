@@ -48,6 +48,25 @@ def ur_manifest(tmp: Path, host: str, name: str = "cell.toml", **safety: Any) ->
     return path
 
 
+def canopen_manifest(tmp: Path, bus: dict[str, Any], name: str = "cell.toml",
+                     driver: dict[str, Any] | None = None, **safety: Any) -> Path:
+    """The CiA 402 cell on drives the test emulates itself (``bus``: the driver settings their
+    emulator's READY line gives, interface, channel and udp_port), as on a robot PC; ``driver``
+    replaces more ``[driver]`` keys of the shipped manifest."""
+    text = (MANIFESTS / "sim-canopen.toml").read_text()
+    for key, value in (driver or {}).items():
+        old = next(line for line in text.splitlines() if line.startswith(f"{key} = "))
+        text = text.replace(old, f"{key} = {json.dumps(value)}")
+    keys = "".join(f"{key} = {json.dumps(value)}\n" for key, value in bus.items())
+    text = text.replace('name = "canopen402"', f'name = "canopen402"\n{keys}', 1)
+    text = text.replace('[emulator]\nplant = "mujoco"', "[emulator]\nlaunch = false")
+    text = text.replace("cycles = 3", "cycles = 1\nsimulated_operator = false")
+    text += f'\n[operator]\nsocket = "{tmp / "operator.sock"}"\n'
+    path = tmp / name
+    path.write_text(text + safety_table(tmp, **safety))
+    return path
+
+
 def sim_manifest(tmp: Path, port: int, name: str = "cell.toml", **safety: Any) -> Path:
     text = (MANIFESTS / "sim-ur5e.toml").read_text().replace("cycles = 3", "cycles = 1")
     path = tmp / name

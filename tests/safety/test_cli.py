@@ -16,6 +16,7 @@ from stubs.ur_controller.launch import EmulatedController, free_loopback_host
 from tests.safety.support import (
     MANIFESTS,
     Monitor,
+    canopen_manifest,
     free_port,
     safety_table,
     sim_manifest,
@@ -40,12 +41,34 @@ def test_a_missing_force_limit_is_refused(tmp_path: Path, capsys) -> None:  # ty
     assert "cell.toml: safety.max_wrist_force_n: required key is missing" in err
 
 
-def test_a_canopen_cell_has_no_monitor_yet(tmp_path: Path, capsys) -> None:  # type: ignore
+def test_a_canopen_cell_whose_emulator_warden_starts_has_no_bus(tmp_path: Path,
+                                                                capsys) -> None:  # type: ignore
     path = tmp_path / "canopen.toml"
     path.write_text((MANIFESTS / "sim-canopen.toml").read_text() + safety_table(tmp_path))
     err = _refusal(capsys, str(path))
-    assert "the safety monitor has no CANopen listener yet" in err
+    assert "canopen.toml: emulator.launch: true, so warden picks the emulated drives' bus" in err
     assert not (tmp_path / "status.sock").exists()
+
+
+@pytest.mark.parametrize(("driver", "expected"), [
+    ({"watchdog_ms": 0}, "cell.toml: driver.watchdog_ms: 0, so warden's driver leaves each "
+                         "drive's abort connection option code (0x6007) as the drive has it"),
+    ({"node_ids": [1, 2, 2]}, "cell.toml: driver: node ids must be unique"),
+])
+def test_canopen_driver_settings_the_monitor_cannot_watch_by_are_refused(
+        tmp_path: Path, capsys, driver: dict, expected: str) -> None:  # type: ignore
+    bus = {"interface": "udp_multicast", "channel": "239.1.2.3", "udp_port": 41234}
+    err = _refusal(capsys, str(canopen_manifest(tmp_path, bus, driver=driver)))
+    assert f"cannot watch the device: {tmp_path}/{expected}" in err
+    assert not (tmp_path / "status.sock").exists()
+
+
+def test_a_canopen_bus_that_does_not_open_is_refused(tmp_path: Path, capsys) -> None:  # type: ignore
+    bus = {"interface": "socketcan", "channel": "can-nowhere"}
+    err = _refusal(capsys, str(canopen_manifest(tmp_path, bus)))
+    assert "cannot watch the device: canopen402: cannot open the CAN bus (interface " \
+           "'socketcan' channel 'can-nowhere')" in err
+    assert "check interface and channel in [driver]" in err
 
 
 def test_a_ur_cell_whose_emulator_warden_starts_has_no_address(tmp_path: Path,

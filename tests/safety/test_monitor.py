@@ -250,3 +250,62 @@ def test_a_loop_that_stopped_checking_is_not_watching(receiver: HeartbeatReceive
     status = monitor.status()
     assert not status["ok"] and not status["watching"]
     assert "the monitor's loop has not completed a check recently" in status["problems"]
+
+
+def test_a_device_that_gives_nothing_to_read_while_warden_runs_is_lost(
+        receiver: HeartbeatReceiver, clock: Clock) -> None:
+    watch = ScriptedWatch()
+    watch.reading = None  # type: ignore[assignment]  # a CiA 402 listener on the wrong bus
+    monitor = _monitor(watch, receiver, clock)
+    monitor.check()
+    assert watch.stops == 0 and monitor.status()["ok"]  # idle drives, no warden: nothing to read
+    for tick in range(round(SETTINGS.device_timeout_ms / 4)):
+        if tick % 10 == 0:
+            _beat(receiver, clock, tick)
+        monitor.check()
+        clock.advance(4)
+    assert watch.stops == 0
+    clock.advance(4)
+    monitor.check()
+    assert watch.stops == 1
+    status = monitor.status()
+    assert not status["ok"] and not status["connected"]
+    assert status["last_stop"]["violations"][0].startswith(
+        f"device_lost: warden (pid {os.getpid()}) runs but the device gave the monitor nothing "
+        "to read for 252 ms")
+
+
+def test_quiet_after_the_monitors_own_stop_in_that_run_is_not_a_loss(
+        receiver: HeartbeatReceiver, clock: Clock) -> None:
+    watch = ScriptedWatch()
+    monitor = _monitor(watch, receiver, clock)
+    _beat(receiver, clock, 0)
+    watch.reading = Sample(q=(1.2,), qd=(0.5,), force_n=0.0)
+    monitor.check()
+    assert watch.stops == 1
+    watch.reading = None  # type: ignore[assignment]  # stopped drives send no process data
+    for tick in range(500):
+        if tick % 10 == 0:
+            _beat(receiver, clock, tick + 1)  # warden runs on until its driver notices
+        clock.advance(4)
+        monitor.check()
+    assert watch.stops == 1 and monitor.status()["ok"]
+
+
+def test_nothing_to_read_is_not_stopped_again_but_a_lost_device_is(
+        receiver: HeartbeatReceiver, clock: Clock) -> None:
+    watch = ScriptedWatch()
+    monitor = _monitor(watch, receiver, clock)
+    _beat(receiver, clock, 0)
+    monitor.check()
+    watch.reading = None  # type: ignore[assignment]  # drives that take no setpoint
+    clock.advance(SETTINGS.heartbeat_timeout_ms + 4)  # and warden hangs
+    for _ in range(500):
+        monitor.check()
+        clock.advance(4)
+    assert watch.stops == 1
+    watch.reading = DeviceLost("no TPDO for 300 ms")  # now the device may move unseen
+    for _ in range(round(SETTINGS.restop_interval_ms / 4) + 1):
+        monitor.check()
+        clock.advance(4)
+    assert watch.stops == 3  # the new breach at once, then again one interval later
