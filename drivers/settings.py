@@ -15,6 +15,15 @@ class SettingsError(ValueError):
     """A manifest table does not fit a driver's settings; the message names the key."""
 
 
+def configured(cls: type, table: Mapping[str, Any], key: str) -> Any:
+    """The value ``table`` gives ``key``, else the default of ``cls``'s field (no coercion:
+    for a look at one setting before the whole table is checked)."""
+    if key in table:
+        return table[key]
+    field = {f.name: f for f in dataclasses.fields(cls)}[key]  # type: ignore[arg-type]
+    return field.default
+
+
 def settings_from_mapping(cls: type[T], table: Mapping[str, Any], where: str) -> T:
     """Build the frozen dataclass ``cls`` from ``table``; ``where`` names the table in errors.
 

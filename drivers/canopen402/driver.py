@@ -43,6 +43,7 @@ from drivers.base import (
     StateSample,
 )
 from drivers.canopen402 import bringup, gripper, inspection, parameters, watchdog
+from drivers.canopen402 import settings as settings_module
 from drivers.canopen402._sdk import Node402, PdoVariable
 from drivers.canopen402.cycle import BusCycle
 from drivers.canopen402.drive_state import FAULTY, check_running, current_state, walk_to
@@ -62,6 +63,9 @@ FIRST_CYCLE_TIMEOUT_S = 1.0
 
 
 class CiA402Driver:
+    device_watchdog = staticmethod(settings_module.device_watchdog)
+    """What stops the arm when warden's commands stop, per manifest table (None: off)."""
+
     def __init__(self, settings: CiA402Settings) -> None:
         self.settings = settings
         self.name = settings.name

@@ -15,7 +15,7 @@ from drivers.canopen402.units import (
     GripperScale,
     JointScale,
 )
-from drivers.settings import settings_from_mapping
+from drivers.settings import configured, settings_from_mapping
 
 
 @dataclass(frozen=True, slots=True)
@@ -197,3 +197,12 @@ def _check_node_ids(node_ids: tuple[int, ...]) -> None:
         raise ValueError("node ids must be within 1..127")
     if len(set(node_ids)) != len(node_ids):
         raise ValueError("node ids must be unique")
+
+
+def device_watchdog(table: Mapping[str, Any]) -> str | None:
+    """What stops the arm when warden's commands stop, as ``table`` configures it; None: off."""
+    timeout_ms = configured(CiA402Settings, table, "watchdog_ms")
+    if not isinstance(timeout_ms, int) or timeout_ms <= 0:
+        return None
+    return (f"every drive's heartbeat consumer: no heartbeat from warden for {timeout_ms} ms and "
+            "the joints quick-stop (0x6007)")

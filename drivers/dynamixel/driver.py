@@ -51,6 +51,7 @@ from drivers.base import (
 )
 from drivers.device_thread import DeviceThread
 from drivers.dynamixel import inspection
+from drivers.dynamixel import settings as settings_module
 from drivers.dynamixel.bus import DynamixelBus, RawState
 from drivers.dynamixel.settings import GRIPPER_MAX_OPENING_M, DynamixelSettings
 from drivers.dynamixel.tables import POSITION_MODE_TICKS
@@ -63,6 +64,9 @@ log = structlog.get_logger(__name__)
 
 
 class DynamixelDriver:
+    device_watchdog = staticmethod(settings_module.device_watchdog)
+    """What stops the arm when warden's commands stop, per manifest table (None: off)."""
+
     def __init__(self, settings: DynamixelSettings, name: str = "dynamixel") -> None:
         self.name = name
         self.settings = settings

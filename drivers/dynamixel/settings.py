@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
 
 from drivers.dynamixel.tables import (
     BUS_WATCHDOG_MAX_UNITS,
@@ -11,6 +13,7 @@ from drivers.dynamixel.tables import (
     GOAL_CURRENT_MAX_UNITS,
     POSITION_MODE_TICKS,
 )
+from drivers.settings import configured
 
 SIX_SERVO_ARM_IDS = (1, 2, 3, 4, 5, 6)
 GRIPPER_MAX_OPENING_M = 0.085
@@ -136,3 +139,12 @@ class DynamixelSettings:
         if self.gripper_open_ticks == self.gripper_closed_ticks:
             raise ValueError(f"gripper_closed_ticks: equals gripper_open_ticks "
                              f"({self.gripper_open_ticks}); open and closed need distinct ticks")
+
+
+def device_watchdog(table: Mapping[str, Any]) -> str | None:
+    """What stops the arm when warden's commands stop, as ``table`` configures it; None: off."""
+    periods = configured(DynamixelSettings, table, "watchdog_periods")
+    if not isinstance(periods, int) or periods <= 0:
+        return None
+    return (f"every servo's Bus Watchdog: no instruction packet for {periods} control periods "
+            "and it stops")

@@ -10,7 +10,9 @@ from __future__ import annotations
 import contextlib
 import threading
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
 
 from assurance.reasons import ReasonCode
 from drivers.base import (
@@ -36,9 +38,15 @@ class SimFaults:
     reject_writes: bool = False
 
 
+def _in_process_plant(table: Mapping[str, Any]) -> str:
+    return "none needed: the simulated plant runs in warden's process and stops with it"
+
+
 class SimDriver:
     capabilities = frozenset({CommandKind.POSITION, CommandKind.VELOCITY, CommandKind.HOLD,
                               CommandKind.STOP, CommandKind.IMPEDANCE})
+    device_watchdog = staticmethod(_in_process_plant)
+    """What stops the arm when warden's commands stop (simulation: warden itself)."""
 
     def __init__(
         self, plant: SimulatedPlant, name: str = "sim", lock: threading.Lock | None = None,

@@ -50,6 +50,7 @@ from drivers.device_thread import DeviceThread
 from drivers.readiness import Finding
 from drivers.settings import SettingsError
 from drivers.ur_rtde import inspection, tables
+from drivers.ur_rtde import settings as settings_module
 from drivers.ur_rtde.link import Link, LinkDown, LinkStalled, Mode, Snapshot
 from drivers.ur_rtde.probe import ControllerUnreachable, probe_controller
 from drivers.ur_rtde.settings import URSettings
@@ -61,6 +62,9 @@ CLOSE_TIMEOUT_S = 10.0
 
 class URRTDEDriver:
     """One UR arm. ``settings`` come from the manifest; ``name`` labels errors and traces."""
+
+    device_watchdog = staticmethod(settings_module.device_watchdog)
+    """What stops the arm when warden's commands stop, per manifest table (None: off)."""
 
     def __init__(self, settings: URSettings, name: str = "ur_rtde") -> None:
         self.name = name

@@ -7,7 +7,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from drivers.settings import settings_from_mapping
+from drivers.settings import configured, settings_from_mapping
 from drivers.ur_rtde import tables
 
 WATCHDOG_PERIODS_RANGE = (2, 10_000)
@@ -146,3 +146,12 @@ def _gripper_problems(s: URSettings) -> list[str]:
         problems.append(f"gripper_max_opening_m = {s.gripper_max_opening_m} is outside "
                         "(0, 0.5] m")
     return problems
+
+
+def device_watchdog(table: Mapping[str, Any]) -> str | None:
+    """What stops the arm when warden's commands stop, as ``table`` configures it; None: off."""
+    periods = configured(URSettings, table, "watchdog_periods")
+    if not isinstance(periods, int) or periods <= 0:
+        return None
+    return (f"the controller's RTDE watchdog: no setpoint for {periods} control periods and the "
+            "control script stops")

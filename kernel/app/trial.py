@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from assurance.reasons import ReasonCode
+from drivers import registry
 from kernel import signing
 from kernel.app.session import RunContext
 from kernel.manifest import Manifest, ManifestError, TrialEnvelope, load_manifest
@@ -57,10 +58,31 @@ def load_trial(path: Path, keys: Path) -> Manifest:
     if manifest.core.state_timeout_ns is None:
         raise ManifestError(f"{path}: timing.state_timeout_ms: missing: a trial needs the "
                             "state watchdog")
+    _device_watchdog(manifest)
     if manifest.cell.simulated_operator:
         raise ManifestError(f"{path}: cell.simulated_operator: must be false in a trial (only a "
                             "human accepts recovery)")
     return _bounded(manifest, envelope)
+
+
+def _device_watchdog(manifest: Manifest) -> str:
+    """What stops the arm if warden dies, as the driver's settings configure it.
+
+    Raises:
+        ManifestError: switched off, or a driver that declares none.
+    """
+    where = f"{manifest.path}: driver"
+    try:
+        declared = getattr(registry.load(manifest.driver_name), "device_watchdog", None)
+    except registry.UnknownDriver as error:
+        raise ManifestError(f"{where}.name: {error}") from None
+    watchdog = declared(manifest.driver_settings) if declared is not None else None
+    if watchdog is None:
+        raise ManifestError(f"{where}: a trial needs the device-side watchdog (it stops the arm "
+                            f"when warden dies), and this {manifest.driver_name} table switches "
+                            "it off or its driver declares none (docs/operations.md, "
+                            "'Device-side watchdogs')")
+    return str(watchdog)
 
 
 def _bounded(manifest: Manifest, envelope: TrialEnvelope) -> Manifest:
@@ -106,8 +128,7 @@ def trial_card(manifest: Manifest, socket: Path, safety: str, journal: Path | No
         ("stop: a person", "the E-stop wired to the arm's safety system (hold it)"),
         ("stop: operator", f"warden operator stop|takeover --socket {socket}"),
         ("stop: safety monitor", safety),
-        ("stop: the device", "its own watchdog stops the arm if warden dies "
-                             "(docs/operations.md, device-side watchdogs)"),
+        ("stop: the device", _device_watchdog(manifest)),
         ("journal", str(journal) if journal is not None else "none (--no-journal)"),
     ]
     width = max(len(name) for name, _ in rows)

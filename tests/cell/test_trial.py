@@ -122,11 +122,13 @@ def test_a_simulated_operator_is_refused(tmp_path: Path) -> None:
 # -- against a running safety monitor: the UR cell on an emulator the test starts -------------
 
 def _ur_trial(tmp: Path, emulator: EmulatedController, trial: str = TRIAL,
-              name: str = "trial-cell.toml") -> Path:
-    """The emulated UR cell as a trial (its monitor's sockets in ``tmp``), signed."""
+              name: str = "trial-cell.toml", watchdog: int = 25) -> Path:
+    """The emulated UR cell as a trial (its monitor's sockets in ``tmp``, the controller's
+    RTDE watchdog on), signed."""
     manifest = ur_manifest(tmp, emulator.host, name=name,
                            device_timeout_ms=UR_DEVICE_TIMEOUT_MS)
-    manifest.write_text(manifest.read_text() + trial)
+    text = manifest.read_text().replace("watchdog_periods = 0", f"watchdog_periods = {watchdog}")
+    manifest.write_text(text + trial)
     sign(manifest, TEST_SIGNER)
     return manifest
 
@@ -168,6 +170,13 @@ class _Trial:
 def emulator() -> Iterator[EmulatedController]:
     with EmulatedController(plant="mujoco") as controller:
         yield controller
+
+
+def test_the_device_watchdog_switched_off_is_refused(tmp_path: Path) -> None:
+    manifest = ur_manifest(tmp_path, "127.0.0.1")  # the safety tests' UR cell: watchdog off
+    manifest.write_text(manifest.read_text() + TRIAL)
+    sign(manifest, TEST_SIGNER)
+    _refused(run_trial(manifest, tmp_path), tmp_path, "driver", "device-side watchdog")
 
 
 @pytest.mark.slow
