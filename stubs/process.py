@@ -7,7 +7,6 @@ what the parent needs (ports, pty path). Anything else the child prints goes to 
 from __future__ import annotations
 
 import contextlib
-import ctypes
 import json
 import os
 import select
@@ -15,19 +14,28 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
 from typing import Any
 
-_PR_SET_PDEATHSIG = 1
+from stubs.child import PARENT_PID
 
 
-def _die_with_parent() -> None:
-    """In the child, before exec: get SIGTERM when the parent dies, however it dies.
-
-    The child runs in its own session (so ``stop`` can signal its whole group); without this a
-    parent killed outright would leave an emulator running, holding its ports.
-    """
-    libc = ctypes.CDLL(None, use_errno=True)
-    libc.prctl(_PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0)
+@contextlib.contextmanager
+def _children_at_ordinary_priority() -> Iterator[None]:
+    """A child inherits the starting thread's scheduling policy: started from warden's control
+    loop thread it would run at the loop's SCHED_FIFO priority and take the CPU from the loop.
+    ``SCHED_RESET_ON_FORK`` while spawning gives it SCHED_OTHER. (warden's own spawns use
+    kernel/shell/realtime.py; the stand-ins' packages import nothing from kernel.)"""
+    policy = os.sched_getscheduler(0)
+    if policy not in (os.SCHED_FIFO, os.SCHED_RR):
+        yield
+        return
+    param = os.sched_getparam(0)
+    os.sched_setscheduler(0, policy | os.SCHED_RESET_ON_FORK, param)
+    try:
+        yield
+    finally:
+        os.sched_setscheduler(0, policy, param)
 
 
 class EmulatorStartError(RuntimeError):
@@ -36,7 +44,8 @@ class EmulatorStartError(RuntimeError):
 
 class EmulatorProcess:
     def __init__(self, module: str, *args: str, ready_timeout_s: float = 20.0) -> None:
-        self.command = [sys.executable, "-m", module, *args]
+        self.command = [sys.executable, "-m", "stubs.child", module, *args]
+        """Through :mod:`stubs.child`: it dies with its parent, and is started with vfork."""
         self.ready_timeout_s = ready_timeout_s
         self.info: dict[str, Any] = {}
         self._proc: subprocess.Popen[bytes] | None = None
@@ -48,10 +57,11 @@ class EmulatorProcess:
         self.stop()
 
     def start(self) -> EmulatorProcess:
-        self._proc = subprocess.Popen(
-            self.command, stdout=subprocess.PIPE, stderr=None, start_new_session=True,
-            env={**os.environ, "PYTHONUNBUFFERED": "1"}, preexec_fn=_die_with_parent,
-        )
+        with _children_at_ordinary_priority():  # never at the control loop's SCHED_FIFO
+            self._proc = subprocess.Popen(
+                self.command, stdout=subprocess.PIPE, stderr=None, start_new_session=True,
+                env={**os.environ, "PYTHONUNBUFFERED": "1", PARENT_PID: str(os.getpid())},
+            )
         self.info = self._wait_ready()
         return self
 

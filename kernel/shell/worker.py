@@ -33,9 +33,11 @@ from kernel.core.effects import Compute
 from kernel.core.events import ComputedEvent
 from kernel.core.jobs import Job, JobFailed, JobResult, run_job
 from kernel.shell.gateway import CoreGateway
+from kernel.shell.realtime import children_at_ordinary_priority
 
 _HEADER = struct.Struct(">I")
 _MAX_FRAME = 16 * 1024 * 1024
+_PARENT_PID = "WARDEN_PARENT_PID"
 _job_encoder = msgspec.msgpack.Encoder()
 _result_decoder = msgspec.msgpack.Decoder(JobResult)
 
@@ -70,9 +72,12 @@ class JobWorker:
         gateway.on(Compute, self._submit)
 
     def start(self) -> None:
-        self._process = subprocess.Popen(
-            [sys.executable, "-m", "kernel.shell.worker"], stdin=subprocess.PIPE,
-            stdout=subprocess.PIPE, preexec_fn=_die_with_parent)
+        # No preexec_fn: it would make subprocess fork() this large, memory-locked process
+        # instead of vfork() (the child asks for PR_SET_PDEATHSIG itself, in main()).
+        with children_at_ordinary_priority():  # the loop's priority is the loop's alone
+            self._process = subprocess.Popen(
+                [sys.executable, "-m", "kernel.shell.worker"], stdin=subprocess.PIPE,
+                stdout=subprocess.PIPE, env={**os.environ, _PARENT_PID: str(os.getpid())})
         self._send(self._init)
 
     async def run(self, started: Any = None) -> None:
@@ -174,8 +179,12 @@ class WorkerDied(RuntimeError):
 
 
 def _die_with_parent() -> None:
+    """In the worker: SIGTERM when warden dies; exit at once if it already has."""
     libc = ctypes.CDLL(None, use_errno=True)
     libc.prctl(1, signal.SIGTERM, 0, 0, 0)  # PR_SET_PDEATHSIG
+    expected = os.environ.get(_PARENT_PID, "")
+    if expected.isdigit() and os.getppid() != int(expected):
+        sys.exit("warden's job worker: warden is gone")
 
 
 # -- the child ---------------------------------------------------------------------------------
@@ -194,6 +203,7 @@ def _read_frame(stream: Any) -> bytes | None:
 
 def main() -> int:
     """The worker: build the configuration, then answer jobs until stdin closes."""
+    _die_with_parent()
     from kernel.scenario.config import build_config
     from kernel.scenario.fields import Where
 
