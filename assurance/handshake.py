@@ -12,6 +12,7 @@ from __future__ import annotations
 import hashlib
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
+from enum import StrEnum
 from typing import Any
 
 import msgspec
@@ -51,8 +52,15 @@ class HandshakeOffer(msgspec.Struct, frozen=True, kw_only=True):
     reason_codes: tuple[str, ...] | None = None
 
 
+class Verdict(StrEnum):
+    """A handshake's result (docs/contract.md §5): "connected" is not one."""
+
+    ACCEPT = "ACCEPT"
+    REJECT = "REJECT"
+
+
 class HandshakeDecision(msgspec.Struct, frozen=True, kw_only=True):
-    decision: str
+    decision: Verdict
     fingerprint: str | None = None
     reasons: tuple[str, ...] = ()
     protocol: int | None = None
@@ -88,17 +96,17 @@ def evaluate(
     """Decide on an offer. All checks run; a rejection lists every reason that applies."""
     typed = decode_offer(offer)
     if isinstance(typed, str):
-        return HandshakeDecision(decision="REJECT", reasons=(ReasonCode.MALFORMED,)), None
+        return HandshakeDecision(decision=Verdict.REJECT, reasons=(ReasonCode.MALFORMED,)), None
     reasons = list(_mismatches(hello, typed, allowlist))
     version = _common_protocol(hello.protocol, typed.protocol)
     if version is None:
         reasons.append(ReasonCode.PROTOCOL_MISMATCH)
     if reasons or version is None:
-        return HandshakeDecision(decision="REJECT", reasons=canonical(reasons)), None
+        return HandshakeDecision(decision=Verdict.REJECT, reasons=canonical(reasons)), None
     print_ = fingerprint(hello, typed, version)
     session = Session(typed.policy_checkpoint, typed.config_hash, print_, version,
                       typed.chunk_horizon)
-    return HandshakeDecision(decision="ACCEPT", fingerprint=print_, protocol=version), session
+    return HandshakeDecision(decision=Verdict.ACCEPT, fingerprint=print_, protocol=version), session
 
 
 def _mismatches(

@@ -27,7 +27,7 @@ from assurance import kinematics as kin_module
 from assurance.cartesian import TRANSLATION_UNITS, CartesianMapper
 from assurance.kinematics import IKConfig
 from assurance.limits import JointLimits
-from skills.interpolator import SetpointInterpolator
+from skills.interpolator import InterpolatorConfig, SetpointInterpolator
 from skills.trajectory import MotionLimits, decelerate_to_hold, plan_joint_move
 from stubs import robot_model as rm
 from stubs.plant.mujoco_plant import MujocoPlant, MujocoPlantConfig
@@ -112,7 +112,8 @@ def trajectory_benchmarks(samples: int) -> None:
     home = np.array(rm.HOME_Q)
     for every, label in ((10, "interpolator tick, new target every 20 ms"),
                          (1, "interpolator tick, new target every tick")):
-        interpolator = SetpointInterpolator(limits, home)
+        interpolator = SetpointInterpolator(limits, home,
+                                            InterpolatorConfig(control_period_ns=2_000_000))
         ticks = itertools.count()  # warm-up and measured calls share one clock
 
         def tick(_i: int, it: SetpointInterpolator = interpolator, e: int = every,

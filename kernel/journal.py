@@ -23,6 +23,7 @@ import msgspec
 
 from assurance.clock import ns_to_ms
 from assurance.envelope import TIME_FIELDS, Chunk, MalformedChunk
+from assurance.reasons import ReasonCode
 from kernel.core.effects import Motion
 from kernel.core.events import (
     ChunkEvent,
@@ -59,7 +60,7 @@ class Applied(msgspec.Struct, frozen=True, kw_only=True, omit_defaults=True):
     """The driver's answer to a command, as the journal records it."""
 
     accepted: bool
-    reason: str | None = None
+    reason: ReasonCode | None = None
     t_device_ns: int | None = None
     """The driver's own time stamp of the write (the host's monotonic clock, ns)."""
 

@@ -79,10 +79,18 @@ class Replay:
                                      f"{_text(record.effect)}, the core decided nothing")
             return
         t, decided = self._decided.popleft()
-        if decided != record.effect:
+        if not same_bits(decided, record.effect):
             self.first_difference = (f"at {t / 1e6:g} ms (command {self.commands_checked}) "
                                      f"the journal records {_text(record.effect)}, the core "
                                      f"decided {_text(decided)}")
+
+
+_bits = msgspec.msgpack.Encoder()
+
+
+def same_bits(decided: Motion, recorded: Motion) -> bool:
+    """Equal to the bit: every float as its 64 bits (``==`` would take -0.0 for 0.0)."""
+    return _bits.encode(decided) == _bits.encode(recorded)
 
 
 def _text(effect: Motion) -> str:

@@ -10,6 +10,8 @@ from __future__ import annotations
 from collections.abc import Iterable, Iterator
 from typing import Any
 
+from assurance.handshake import Verdict
+
 _KEYS = ("command", "owner", "phase", "mode", "reason")
 
 
@@ -66,7 +68,7 @@ def _event(line: dict[str, Any]) -> str:
         target = line.get("requested") or line["to"]
         return f"{head}{line['machine']}: {line['from']} {verb} {target} ({line['trigger']})"
     if kind == "handshake":
-        if line["decision"] == "ACCEPT":
+        if line["decision"] == Verdict.ACCEPT:
             return f"{head}handshake ACCEPT, fingerprint {line['fingerprint'][:12]}…"
         return f"{head}handshake REJECT ({' + '.join(line['reasons'])})"
     if kind == "queue":

@@ -33,7 +33,10 @@ from skills.trajectory import (
 
 @dataclass(frozen=True, slots=True)
 class InterpolatorConfig:
-    control_period_ns: int = 2_000_000
+    control_period_ns: int
+    """The control period each call advances: no default, since a wrong one scales every
+    motion by the ratio of the periods (an 8 ms loop on a 2 ms default moved at a quarter of
+    the asked speed)."""
     max_stream_interval_ns: int = 100_000_000
     """Targets further apart than this are treated as a fresh start (no stream velocity)."""
     velocity_feedforward: bool = True
@@ -70,9 +73,9 @@ class SetpointInterpolator:
     """
 
     def __init__(self, limits: MotionLimits, q0: np.ndarray,
-                 config: InterpolatorConfig | None = None) -> None:
+                 config: InterpolatorConfig) -> None:
         self.limits = limits
-        self.config = config or InterpolatorConfig()
+        self.config = config
         self._otg = Ruckig(limits.dof, self.config.control_period_ns * NS)
         self._out = OutputParameter(limits.dof)
         self._half_inverse_acceleration = 0.5 / limits.acceleration

@@ -11,6 +11,8 @@ from enum import StrEnum
 import msgspec
 
 from assurance.fallback import Command, Mode, Owner
+from assurance.handshake import Verdict
+from assurance.reasons import ReasonCode
 from skills.phases import TaskPhase
 
 Ms = int | float
@@ -67,7 +69,7 @@ class ChunkLine(msgspec.Struct, frozen=True, kw_only=True, tag_field="kind", tag
     t: Ms
     chunk_id: str | None
     decision: Decision
-    reasons: tuple[str, ...]
+    reasons: tuple[ReasonCode, ...]
     queue_epoch: int
     queue_depth: int
     trimmed: int | None = None
@@ -87,7 +89,7 @@ class TickLine(msgspec.Struct, frozen=True, kw_only=True, tag_field="kind", tag=
     sent: SentRef | None
     phase: TaskPhase
     mode: Mode
-    reason: str | None = None
+    reason: ReasonCode | None = None
     age_ms: Ms | None = None
 
 
@@ -95,12 +97,14 @@ class TransitionLine(msgspec.Struct, frozen=True, kw_only=True, tag_field="kind"
                      tag="transition", omit_defaults=True):
     t: Ms
     machine: Machine
+    # A task phase or a fallback mode, as ``machine`` says: both are string enums, and a
+    # msgspec union may hold only one of those.
     from_: str = msgspec.field(name="from")
     to: str
-    trigger: str
+    trigger: ReasonCode
     accepted: bool = True
     requested: str | None = None
-    reasons: tuple[str, ...] = ()
+    reasons: tuple[ReasonCode, ...] = ()
     missing_evidence: tuple[str, ...] = ()
     owner: str | None = None
     command: str | None = None
@@ -112,9 +116,9 @@ class TransitionLine(msgspec.Struct, frozen=True, kw_only=True, tag_field="kind"
 class HandshakeLine(msgspec.Struct, frozen=True, kw_only=True, tag_field="kind",
                     tag="handshake", omit_defaults=True):
     t: Ms
-    decision: str
+    decision: Verdict
     fingerprint: str | None = None
-    reasons: tuple[str, ...] = ()
+    reasons: tuple[ReasonCode, ...] = ()
     protocol: int | None = None
     queue_epoch: int | None = None
 
@@ -126,7 +130,7 @@ class QueueLine(msgspec.Struct, frozen=True, kw_only=True, tag_field="kind", tag
     queue_epoch: int
     dropped: int = 0
     chunk_id: str | None = None
-    reason: str | None = None
+    reason: ReasonCode | None = None
 
 
 class RequestLine(msgspec.Struct, frozen=True, kw_only=True, tag_field="kind", tag="request",

@@ -1,1 +1,1 @@
-"""The thin asyncio shell: rates, deadlines, task supervision and bounded channels."""
+"""The thin asyncio shell: rates, deadlines, task supervision, bounded peers and the record."""

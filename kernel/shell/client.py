@@ -34,7 +34,7 @@ import structlog
 from websockets.asyncio.client import ClientConnection, connect
 from websockets.exceptions import ConnectionClosed, InvalidHandshake
 
-from assurance.handshake import HandshakeDecision
+from assurance.handshake import HandshakeDecision, Verdict
 from kernel import wire
 from kernel.core import events as ev
 from kernel.core.effects import EndSession, RequestObservation
@@ -245,7 +245,7 @@ class RobotClient:
                                      reasons=tuple(verdict.reasons), protocol=verdict.protocol)
         epoch = self._gateway.client_side_hello().queue_epoch
         await link.send(wire.Decision(decision=decision, queue_epoch=epoch))
-        if verdict.decision != "ACCEPT" or verdict.protocol is None:
+        if verdict.decision != Verdict.ACCEPT or verdict.protocol is None:
             self.counters.handshakes_rejected += 1
             raise LinkEnded(ByeReason.HANDSHAKE_REJECTED, ",".join(verdict.reasons))
         self.counters.handshakes_accepted += 1

@@ -4,12 +4,18 @@ compared (exit 3: the record is incomplete); damage anywhere else is still inval
 
 from __future__ import annotations
 
+import json
+import math
 import shutil
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
 
+from assurance.fallback import Owner
 from kernel.cli import main
+from kernel.core.effects import Setpoint
+from kernel.replay import same_bits
 
 _Capture = pytest.CaptureFixture[str]
 
@@ -126,3 +132,44 @@ def test_a_decision_log_longer_than_its_whole_journal_is_a_difference(run_copy: 
     decisions.write_bytes(b"".join(lines + lines[-1:]))
     assert main(["replay", str(run_copy / "journal.jsonl")]) == 1
     assert f"{len(lines) + 1} lines recorded, {len(lines)} replayed" in capsys.readouterr().err
+
+
+def _altered_setpoint(journal: Path, alter: Callable[[float], float]) -> int:
+    """Rewrite the first policy setpoint's first joint in the journal; its command number."""
+    lines = journal.read_bytes().splitlines(keepends=True)
+    commands = 0
+    for at, raw in enumerate(lines):
+        record = json.loads(raw)
+        if record.get("kind") != "command" or record.get("origin", "core") != "core":
+            continue
+        commands += 1
+        effect = record["effect"]
+        if effect.get("effect") == "setpoint" and effect.get("chunk_id"):
+            effect["q"][0] = alter(effect["q"][0])
+            lines[at] = json.dumps(record).encode() + b"\n"
+            journal.write_bytes(b"".join(lines))
+            return commands
+    raise AssertionError("the run wrote no policy setpoint")
+
+
+@pytest.mark.parametrize("alter", [lambda q: math.nextafter(q, math.inf),
+                                   lambda q: math.nextafter(q, -math.inf)],
+                         ids=["one ulp up", "one ulp down"])
+def test_a_command_one_ulp_off_is_the_first_difference(run_copy: Path, capsys: _Capture,
+                                                       alter: Callable[[float], float]) -> None:
+    number = _altered_setpoint(run_copy / "journal.jsonl", alter)
+    assert main(["replay", str(run_copy / "journal.jsonl")]) == 1
+    err = capsys.readouterr().err
+    assert "first difference at " in err and f"(command {number})" in err
+    assert "the journal records" in err and "the core decided" in err
+
+
+def test_commands_compare_to_the_bit() -> None:
+    """-0.0 == 0.0 and NaN != NaN in Python; neither holds for the journal's comparison."""
+    def setpoint(q0: float) -> Setpoint:
+        return Setpoint(q=(q0, 0.5), gripper=None, owner=Owner.POLICY, chunk_id="c", index=0)
+
+    assert same_bits(setpoint(0.0), setpoint(0.0))
+    assert not same_bits(setpoint(0.0), setpoint(-0.0))
+    assert same_bits(setpoint(math.nan), setpoint(math.nan))
+    assert not same_bits(setpoint(0.5), setpoint(math.nextafter(0.5, 1.0)))

@@ -13,6 +13,7 @@ from skills.trajectory import MotionLimits, decelerate_to_hold, plan_joint_move
 
 PROPERTY = settings(max_examples=30, deadline=None)
 PERIOD_NS = 2_000_000
+CONFIG = InterpolatorConfig(control_period_ns=PERIOD_NS)
 ACTION_NS = 20_000_000
 LIMITS = MotionLimits(
     lower=np.array([-6.28, -6.28, -3.14, -6.28, -6.28, -6.28]),
@@ -46,7 +47,7 @@ def run_stream(interpolator: SetpointInterpolator, targets: list[np.ndarray],
        ticks_per_target=st.integers(1, 15))
 def test_interpolator_output_stays_inside_limits(start, steps, ticks_per_target):
     targets = list(np.clip(start + np.cumsum(steps, axis=0), LIMITS.lower, LIMITS.upper))
-    rows = run_stream(SetpointInterpolator(LIMITS, start), targets, ticks_per_target, 50)
+    rows = run_stream(SetpointInterpolator(LIMITS, start, CONFIG), targets, ticks_per_target, 50)
     q, qd, qdd = rows[:, :6], rows[:, 6:12], rows[:, 12:]
     assert np.all(np.abs(qd) <= LIMITS.velocity * (1 + SLACK))
     assert np.all(np.abs(qdd) <= LIMITS.acceleration * (1 + SLACK))
@@ -63,7 +64,8 @@ def test_stream_towards_a_limit_never_crosses_it(velocity, ticks_per_target):
     step = velocity * ticks_per_target * PERIOD_NS * 1e-9
     count = int(np.ceil((upper - 5.0) / step)) + 20  # the stream ends parked on the limit
     targets = [np.array([min(upper, 5.0 + k * step)] + [0.0] * 5) for k in range(count)]
-    rows = run_stream(SetpointInterpolator(LIMITS, targets[0]), targets, ticks_per_target, 400)
+    interpolator = SetpointInterpolator(LIMITS, targets[0], CONFIG)
+    rows = run_stream(interpolator, targets, ticks_per_target, 400)
     assert rows[:, 0].max() <= upper + SLACK
     assert rows[-1, 0] == pytest.approx(upper, abs=SETTLED)
 
@@ -78,7 +80,8 @@ def test_setpoints_never_back_up_against_a_monotonic_stream(speeds, ticks_per_ta
     dt = ticks_per_target * PERIOD_NS * 1e-9
     path = np.cumsum([0.0, *(v * dt for v in speeds)])
     targets = [np.full(6, -2.0 + p) for p in path]
-    rows = run_stream(SetpointInterpolator(LIMITS, targets[0]), targets, ticks_per_target, 1000)
+    interpolator = SetpointInterpolator(LIMITS, targets[0], CONFIG)
+    rows = run_stream(interpolator, targets, ticks_per_target, 1000)
     current_target = np.array([targets[min(i // ticks_per_target, len(targets) - 1)][0]
                                for i in range(len(rows))])
     backwards = np.flatnonzero(np.diff(rows[:, 0]) < -1e-12) + 1
@@ -93,7 +96,7 @@ def test_steady_stream_is_followed_without_stopping():
     speed = 0.5  # rad/s on every joint, a new action every 20 ms, for 3 s
     targets = [start + speed * k * ACTION_NS * 1e-9 for k in range(1, 150)]
     ticks = ACTION_NS // PERIOD_NS
-    rows = run_stream(SetpointInterpolator(LIMITS, start), targets, ticks)
+    rows = run_stream(SetpointInterpolator(LIMITS, start, CONFIG), targets, ticks)
     lag = np.array([targets[i // ticks] for i in range(len(rows))]) - rows[:, :6]
     # Passing through each target at the stream's velocity: no stop-and-go once moving, and
     # the start-up lag (jerk-limited from rest) shrinks towards one action interval.
@@ -106,13 +109,13 @@ def test_steady_stream_is_followed_without_stopping():
 def test_stream_that_stops_settles_exactly_on_the_last_target():
     start = np.zeros(6)
     targets = [start + 0.5 * k * ACTION_NS * 1e-9 for k in range(1, 20)]
-    rows = run_stream(SetpointInterpolator(LIMITS, start), targets, 10, extra_ticks=400)
+    rows = run_stream(SetpointInterpolator(LIMITS, start, CONFIG), targets, 10, extra_ticks=400)
     np.testing.assert_allclose(rows[-1, :6], targets[-1], atol=SETTLED)
     np.testing.assert_allclose(rows[-1, 6:], 0.0, atol=SETTLED)
 
 
 def test_interpolator_rejects_bad_input_and_keeps_its_state():
-    interpolator = SetpointInterpolator(LIMITS, np.zeros(6))
+    interpolator = SetpointInterpolator(LIMITS, np.zeros(6), CONFIG)
     first = interpolator.update(np.full(6, 0.1), 10 * PERIOD_NS)
     for bad, match in (
         (np.full(6, 7.0), "not inside"),

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from assurance.kinematics import ArmKinematics, Pose
-from skills.interpolator import SetpointInterpolator
+from skills.interpolator import InterpolatorConfig, SetpointInterpolator
 from skills.trajectory import MotionLimits, plan_joint_move
 from stubs import robot_model as rm
 from stubs.plant.mujoco_plant import MujocoPlant
@@ -141,7 +141,8 @@ def test_a_picked_peg_stays_put_through_transport_and_a_streamed_descent(kin, se
 
     streamed = MotionLimits(kin.lower, kin.upper, np.full(6, 3.14), np.full(6, 20.0),
                             np.full(6, 50.0))
-    interpolator = SetpointInterpolator(streamed, q_of(plant))
+    interpolator = SetpointInterpolator(streamed, q_of(plant),
+                                        InterpolatorConfig(control_period_ns=round(DT * 1e9)))
     targets = descent_targets(kin, q_of(plant), above(HOLE, 0.15), 0.09, 0.3)
     t_ns = plant.state().t_ns
     for target in [*targets, *[targets[-1]] * 15]:  # the stream stops, then settles
