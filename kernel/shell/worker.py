@@ -17,6 +17,7 @@ closes, and is killed with its parent (``PR_SET_PDEATHSIG``).
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import ctypes
 import json
 import os
@@ -105,7 +106,8 @@ class JobWorker:
         if process is None:
             return
         if process.stdin is not None:
-            process.stdin.close()
+            with contextlib.suppress(BrokenPipeError):  # a dead worker: its pipe is closed
+                process.stdin.close()
         try:
             process.wait(timeout=2.0)
         except subprocess.TimeoutExpired:

@@ -127,3 +127,17 @@ def test_a_policy_server_lost_in_contact_ends_contact_and_the_cycle(
     assert not summary["timed_out"]
     assert summary["link"]["server_restarts"] >= 1
     assert replays_identically(run_dir(tmp_path / "runs"))
+
+
+def test_a_cartesian_cycle_maps_its_chunks_in_the_worker_and_replays_exactly(
+        tmp_path: Path) -> None:
+    """On the wall clock the Cartesian chunks' IK runs in the job worker process, off the
+    control loop; its results are journaled events, so the replay needs no worker."""
+    summary = run(run_live(manifest("sim-ur5e-cartesian.toml", cycles=1), tmp_path / "runs"))
+    (cycle,) = summary["cycles"]["detail"]
+    assert cycle["verified"], cycle
+    assert summary["jobs"]["done"] > 5 and summary["jobs"]["failed"] == 0
+    directory = run_dir(tmp_path / "runs")
+    computed = [line for line in (directory / "journal.jsonl").open() if '"computed"' in line]
+    assert len(computed) == summary["jobs"]["done"]
+    assert replays_identically(directory)
