@@ -1,9 +1,9 @@
 """``warden trial MANIFEST``: a bounded trial (kernel/app/trial.py says what that takes).
 
 Exit codes: 0 every cycle verified inside the envelope; 1 the trial ended on a bound (the
-envelope, its duration) or a cycle did not verify; 2 it did not start: a signature that does
-not verify, no envelope, no watchdog, no safety monitor, nobody confirmed (the message names
-what is wrong; nothing moved).
+envelope, its duration, the safety monitor gone) or a cycle did not verify; 2 it did not
+start: a signature that does not verify, no envelope, no watchdog, no safety monitor, nobody
+confirmed (the message names what is wrong; nothing moved).
 """
 
 from __future__ import annotations
@@ -83,7 +83,14 @@ def _confirmed(manifest: Manifest, socket: Path, timeout_s: float) -> int:
         ManifestError: nobody confirmed (the trial does not start; nothing moved).
     """
     if sys.stdin.isatty():
-        typed = input(f"type {manifest.name} to start the trial (anything else cancels): ")
+        # The prompt goes where the card went (stderr): stdout may carry the JSON summary
+        # (--json -) or be redirected, and a prompt there is one the human never sees.
+        print(f"type {manifest.name} to start the trial (anything else cancels): ", end="",
+              file=sys.stderr, flush=True)
+        try:
+            typed = sys.stdin.readline()  # "" at end of input (Ctrl-D): not confirmed
+        except KeyboardInterrupt:  # Ctrl-C at the prompt: not confirmed, not a traceback
+            typed = ""
         if typed.strip() != manifest.name:
             raise ManifestError(f"{manifest.path}: trial: not confirmed at the terminal")
         log.info("trial confirmed", run=manifest.name, uid=os.getuid(), via="terminal")

@@ -35,24 +35,52 @@ def _version() -> str:
 
 def revision(repo: Path = REPO) -> str:
     """The git commit warden runs from, read from the repository's files (no git needed), or
-    "unknown" outside a checkout; "+dirty" is not detectable this way and is not claimed."""
-    head = repo / ".git" / "HEAD"
+    "unknown" outside a checkout; "+dirty" is not detectable this way and is not claimed.
+
+    A linked worktree (``git worktree add``) has a ``.git`` file naming its own git directory
+    (its HEAD) whose ``commondir`` holds the branches and ``packed-refs``."""
+    git = _git_dir(repo / ".git")
+    if git is None:
+        return "unknown"
     try:
-        text = head.read_text().strip()
+        text = (git / "HEAD").read_text().strip()
     except OSError:
         return "unknown"
     if not text.startswith("ref: "):
         return text
     ref = text.removeprefix("ref: ")
+    common = _common_dir(git)
+    for directory in dict.fromkeys((git, common)):  # per-worktree refs first, then shared
+        try:
+            return (directory / ref).read_text().strip()
+        except OSError:
+            continue
+    return _packed(common, ref)
+
+
+def _git_dir(dot_git: Path) -> Path | None:
+    """``.git`` itself, or the directory a worktree's ``.git`` file points to."""
+    if dot_git.is_dir():
+        return dot_git
     try:
-        return (repo / ".git" / ref).read_text().strip()
+        text = dot_git.read_text().strip()
     except OSError:
-        return _packed(repo, ref)
+        return None
+    if not text.startswith("gitdir: "):
+        return None
+    return dot_git.parent / text.removeprefix("gitdir: ").strip()  # absolute stays absolute
 
 
-def _packed(repo: Path, ref: str) -> str:
+def _common_dir(git: Path) -> Path:
     try:
-        lines = (repo / ".git" / "packed-refs").read_text().splitlines()
+        return git / (git / "commondir").read_text().strip()
+    except OSError:
+        return git
+
+
+def _packed(common: Path, ref: str) -> str:
+    try:
+        lines = (common / "packed-refs").read_text().splitlines()
     except OSError:
         return "unknown"
     for line in lines:

@@ -11,6 +11,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import socket
 import subprocess
 import sys
 from collections.abc import Iterator
@@ -200,12 +201,18 @@ def test_a_monitor_watching_another_manifest_is_refused(
     _refused(done, tmp_path, "watched.toml", "not this manifest")
 
 
+def _git_head() -> str:
+    return subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True,
+                          text=True, check=True).stdout.strip()
+
+
 @pytest.mark.slow
 def test_a_confirmed_trial_runs_inside_its_envelope(
         tmp_path: Path, emulator: EmulatedController) -> None:
     manifest = _ur_trial(tmp_path, emulator)
     monitor = Monitor(manifest, tmp_path)
     trial: _Trial | None = None
+    revisions = {_git_head()}
     try:
         monitor.wait_watching()
         trial = _Trial(manifest, tmp_path)
@@ -226,6 +233,9 @@ def test_a_confirmed_trial_runs_inside_its_envelope(
     assert head["provenance"]["manifest"]["sha256"] == hashlib.sha256(
         manifest.read_bytes()).hexdigest()
     assert head["provenance"]["signer"] == TEST_KEY_ID
+    revisions.add(_git_head())  # others may commit to this checkout while the trial runs
+    assert head["provenance"]["software"]["revision"] in revisions
+    assert head["provenance"]["host"] == socket.gethostname()
     assert head["envelope"]["max_wrist_force_n"] == FORCE_LIMIT_N
     replayed = subprocess.run(
         [sys.executable, "-m", "kernel.cli", "replay",
