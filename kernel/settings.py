@@ -6,6 +6,7 @@ are here so each table's meaning can be read on its own.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from enum import StrEnum
 
@@ -50,6 +51,32 @@ class EmulatorSettings:
     host: str = ""
 
 
+POLICY_LINK_BOUNDS: dict[str, tuple[float, float]] = {
+    "max_frames_per_s": (1.0, 100_000.0),
+    "max_chunks_per_s": (0.1, 10_000.0),
+    "max_requests_in_flight": (1, 64),
+    "admissions_per_period": (1, 64),
+    "request_timeout_ms": (1.0, 60_000.0),
+    "heartbeat_interval_ms": (1.0, 60_000.0),
+    "heartbeat_timeout_ms": (1.0, 60_000.0),
+}
+"""Ranges of what one policy peer may cost (docs/manifest.md, "Bounds"): every rate, count and
+time the link budget (kernel/shell/link_budget.py) computes with is finite and sane before a
+server starts. A frame rate above 100 000/s or a chunk rate above 10 000/s is no limit at the
+GIL's pace; more than 64 requests in flight or admissions per period is more than a chunk
+queue holds; a timeout or heartbeat beyond a minute is a dead link nobody notices."""
+
+
+def _check_bounded(name: str, value: float, low: float, high: float) -> None:
+    """``value`` is a finite number within [low, high] (NaN and ±inf refused by name)."""
+    if not value > 0:  # also refuses NaN
+        raise ValueError(f"{name} must be positive, got {value!r}")
+    if not (math.isfinite(value) and value <= high):
+        raise ValueError(f"{name} must be a finite number of at most {high:g}, got {value!r}")
+    if value < low:
+        raise ValueError(f"{name} must be at least {low:g}, got {value!r}")
+
+
 @dataclass(frozen=True, slots=True)
 class PolicySettings:
     launch: bool = True
@@ -75,13 +102,8 @@ class PolicySettings:
     heartbeat_timeout_ms: float = 350.0
 
     def __post_init__(self) -> None:
-        for name in ("max_frames_per_s", "max_chunks_per_s", "request_timeout_ms",
-                     "heartbeat_interval_ms"):
-            if not getattr(self, name) > 0:  # also refuses NaN
-                raise ValueError(f"{name} must be positive, got {getattr(self, name)!r}")
-        for name in ("max_requests_in_flight", "admissions_per_period"):
-            if getattr(self, name) < 1:
-                raise ValueError(f"{name} must be at least 1, got {getattr(self, name)!r}")
+        for name, (low, high) in POLICY_LINK_BOUNDS.items():
+            _check_bounded(name, getattr(self, name), low, high)
         if not 1 <= self.max_frame_bytes <= MAX_FRAME_BYTES:
             raise ValueError(f"max_frame_bytes must be in 1..{MAX_FRAME_BYTES}, got "
                              f"{self.max_frame_bytes!r}")

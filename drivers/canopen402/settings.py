@@ -12,10 +12,22 @@ from drivers.canopen402.units import (
     GRIPPER_COUNTS_PER_M,
     GRIPPER_STROKE_M,
     INT32_MAX,
+    INT32_MIN,
     GripperScale,
     JointScale,
 )
 from drivers.settings import configured, settings_from_mapping
+
+COUNTS_PER_REV_RANGE = (1, 2**31)
+GEAR_RATIO_RANGE = (0.001, 10_000.0)
+"""Motor turns per joint turn: strain-wave and cycloidal gears reach a few hundred."""
+BITRATE_RANGE = (10_000, 1_000_000)
+"""Classic CAN (CiA 301's bit rates run from 10 kbit/s to 1 Mbit/s)."""
+TIMEOUT_MAX: dict[str, float] = {
+    "heartbeat_timeout_ms": 60_000, "tpdo_timeout_ms": 60_000, "sdo_timeout_s": 60.0,
+    "boot_timeout_s": 60.0, "state_timeout_s": 60.0, "call_timeout_s": 60.0,
+}
+"""Every timeout is finite and at most a minute: a drive silent longer is not coming back."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -88,20 +100,43 @@ class CiA402Settings:
             required = key == "counts_per_rev"
             if len(values) != joints and (required or values):
                 raise ValueError(f"{key} has {len(values)} values for {joints} node ids")
-        if any(c <= 0 for c in self.counts_per_rev):
-            raise ValueError("counts_per_rev must be positive")
+        self._check_scales()
         if any(d not in (-1, 1) for d in self.direction):
             raise ValueError("direction values must be 1 or -1")
         if not 0 < self.heartbeat_period_ms < self.heartbeat_timeout_ms:
             raise ValueError("need 0 < heartbeat_period_ms < heartbeat_timeout_ms")
         if self.heartbeat_period_ms > 0xFFFF:
             raise ValueError("heartbeat_period_ms does not fit 0x1017 (UNSIGNED16)")
-        if min(self.tpdo_timeout_ms, self.sdo_timeout_s, self.boot_timeout_s,
-               self.state_timeout_s, self.call_timeout_s) <= 0:
-            raise ValueError("timeouts must be positive")
+        for key, high in TIMEOUT_MAX.items():
+            value = getattr(self, key)
+            if not (math.isfinite(value) and 0 < value <= high):  # NaN fails too
+                raise ValueError(f"{key} must be a finite timeout above 0 and at most {high:g}, "
+                                 f"got {value}")
+        if not BITRATE_RANGE[0] <= self.bitrate <= BITRATE_RANGE[1]:
+            raise ValueError(f"bitrate must be within {BITRATE_RANGE[0]}..{BITRATE_RANGE[1]} "
+                             f"bit/s (classic CAN), got {self.bitrate}")
+        if not 1 <= self.udp_port <= 0xFFFF:
+            raise ValueError(f"udp_port must be within 1..65535, got {self.udp_port}")
         self._check_watchdog()
         if self.interface == "udp_multicast" and (problem := check_group(self.channel)):
             raise ValueError(f"channel: {problem}")
+
+    def _check_scales(self) -> None:
+        low, high = COUNTS_PER_REV_RANGE
+        for i, counts in enumerate(self.counts_per_rev):
+            if not (math.isfinite(counts) and counts == int(counts) and low <= counts <= high):
+                raise ValueError(f"counts_per_rev[{i}] must be a whole number of counts within "
+                                 f"{low}..{high} (2**31: a joint turn must fit the drive's "
+                                 f"INTEGER32 position), got {counts}")
+        for i, offset in enumerate(self.offset_counts):
+            if not INT32_MIN <= offset <= INT32_MAX:
+                raise ValueError(f"offset_counts[{i}] must be an INTEGER32 position "
+                                 f"({INT32_MIN}..{INT32_MAX}), got {offset}")
+        low_gear, high_gear = GEAR_RATIO_RANGE
+        for i, gear in enumerate(self.gear_ratio):
+            if not (math.isfinite(gear) and low_gear <= gear <= high_gear):
+                raise ValueError(f"gear_ratio[{i}] must be a finite ratio within "
+                                 f"{low_gear:g}..{high_gear:g}, got {gear}")
 
     def _check_watchdog(self) -> None:
         if not 1 <= self.master_node_id <= 127 or self.master_node_id in self.drive_ids:

@@ -8,6 +8,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from drivers.dynamixel.tables import (
+    BAUD_RATES,
     BUS_WATCHDOG_MAX_UNITS,
     BUS_WATCHDOG_UNIT_S,
     GOAL_CURRENT_MAX_UNITS,
@@ -18,6 +19,21 @@ from drivers.settings import configured
 SIX_SERVO_ARM_IDS = (1, 2, 3, 4, 5, 6)
 GRIPPER_MAX_OPENING_M = 0.085
 """Opening between the pads (m) at ``gripper_open_ticks``; commands are clipped to [0, this]."""
+OFFSET_MAX_RAD = 2 * math.pi
+"""``offsets_rad`` is a shaft angle: one turn either way is more than a position-mode servo
+has (its ticks span one turn around the centre)."""
+MAX_RETRIES = 10
+MAX_WATCHDOG_PERIODS = 10_000
+"""A generous cap; the exact one (127 units of 20 ms) needs the control period (configure)."""
+RANGES: dict[str, tuple[float, float]] = {
+    "latency_budget_ms": (0.0, 1000.0),
+    "call_timeout_s": (0.0, 60.0),
+    "current_unit_ma": (0.01, 100.0),
+    "torque_per_amp_nm": (0.0, 100.0),
+}
+"""(low, high]: every float setting is finite, above ``low`` and at most ``high``. A second of
+packet latency is a broken adapter; a device call over a minute is a hung one; the X series
+counts 1 to 2.69 mA per current unit and 1 to 3 N·m per ampere."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -80,15 +96,29 @@ class DynamixelSettings:
                 raise ValueError(f"{key}: {len(values)} values for {len(self.ids)} servo ids")
         if any(d not in (1, -1) for d in self.directions):
             raise ValueError(f"directions: each must be 1 or -1, got {list(self.directions)}")
+        if self.baud not in BAUD_RATES:
+            raise ValueError(f"baud: {self.baud} is not a rate both dynamixel_sdk and the X "
+                             f"series support (one of {', '.join(map(str, BAUD_RATES))})")
+        if not all(math.isfinite(o) and abs(o) <= OFFSET_MAX_RAD for o in self.offsets_rad):
+            raise ValueError(f"offsets_rad: each must be a finite shaft angle within "
+                             f"±{OFFSET_MAX_RAD:.4f} rad (one turn), got {list(self.offsets_rad)}")
         if self.retries < 0:
             raise ValueError(f"retries: must be >= 0, got {self.retries}")
+        if self.retries > MAX_RETRIES:
+            raise ValueError(f"retries: must be at most {MAX_RETRIES}, got {self.retries}")
         if self.watchdog_periods < 0:
             raise ValueError(f"watchdog_periods: must be >= 0 (0 switches the Bus Watchdog "
                              f"off), got {self.watchdog_periods}")
-        for key in ("latency_budget_ms", "call_timeout_s", "current_unit_ma",
-                    "torque_per_amp_nm"):
-            if not getattr(self, key) > 0:
-                raise ValueError(f"{key}: must be > 0, got {getattr(self, key)}")
+        if self.watchdog_periods > MAX_WATCHDOG_PERIODS:
+            raise ValueError(f"watchdog_periods: must be at most {MAX_WATCHDOG_PERIODS} (the "
+                             f"Bus Watchdog lasts at most 2.54 s), got {self.watchdog_periods}")
+        for key, (low, high) in RANGES.items():
+            value = getattr(self, key)
+            if not value > 0:  # also refuses NaN
+                raise ValueError(f"{key}: must be > 0, got {value}")
+            if not (math.isfinite(value) and low < value <= high):
+                raise ValueError(f"{key}: must be a finite number above {low:g} and at most "
+                                 f"{high:g}, got {value}")
         self._check_gripper()
 
     @property
@@ -130,8 +160,9 @@ class DynamixelSettings:
             if not low <= getattr(self, key) <= high:
                 raise ValueError(f"{key}: must be a position-mode tick in {low}..{high}, "
                                  f"got {getattr(self, key)}")
-        if not (math.isfinite(self.gripper_current_ma) and 0 < self.gripper_current_units
-                <= GOAL_CURRENT_MAX_UNITS):
+        ceiling_ma = (GOAL_CURRENT_MAX_UNITS + 1) * self.current_unit_ma  # before dividing
+        if not (math.isfinite(self.gripper_current_ma) and 0 < self.gripper_current_ma
+                <= ceiling_ma and 0 < self.gripper_current_units <= GOAL_CURRENT_MAX_UNITS):
             raise ValueError(f"gripper_current_ma: must be above 0 and at most "
                              f"{GOAL_CURRENT_MAX_UNITS * self.current_unit_ma:.0f} mA "
                              f"({GOAL_CURRENT_MAX_UNITS} units of {self.current_unit_ma} mA), "

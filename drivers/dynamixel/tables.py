@@ -93,6 +93,10 @@ POSITION_MODE_TICKS = (0, 4095)
 """Goal Position range in position mode (one turn); the servo refuses goals outside it."""
 VELOCITY_UNIT_RPM = 0.229
 """Present Velocity counts 0.229 rev/min on every X-series model."""
+BAUD_RATES = (9600, 57600, 115200, 1_000_000, 2_000_000, 3_000_000, 4_000_000)
+"""The rates ``baud`` may name: those an X-series servo's Baud Rate (8) can be set to (values 0
+to 6; 7 is 4.5 Mbps) that dynamixel_sdk's PortHandler also opens (its fixed list stops at
+4 Mbps and holds rates no X-series servo speaks, such as 19200 or 2.5 Mbps)."""
 
 X_SERIES_MODELS = MappingProxyType({
     1020: "XM430-W350",

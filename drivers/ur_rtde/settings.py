@@ -13,6 +13,9 @@ from drivers.ur_rtde import tables
 WATCHDOG_PERIODS_RANGE = (2, 10_000)
 """An armed watchdog waits at least two periods (one late tick must not stop the arm); 0 is
 "off"."""
+FEEDBACK_MAX = 100.0
+"""Bound on a gripper feedback reading: a standard analog input reads 0 to 10 V or 0.004 to
+0.02 A; anything beyond a hundred is a unit mistake (and NaN fails the comparison too)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -139,9 +142,10 @@ def _gripper_problems(s: URSettings) -> list[str]:
         problems.append(f"gripper_feedback = {s.gripper_feedback!r} is not one of "
                         f"{', '.join(tables.GRIPPER_FEEDBACK_INPUTS)}{hint}")
     closed, opened = s.gripper_feedback_closed, s.gripper_feedback_open
-    if not (math.isfinite(closed) and math.isfinite(opened)) or closed == opened:
+    if not (abs(closed) <= FEEDBACK_MAX and abs(opened) <= FEEDBACK_MAX) or closed == opened:
         problems.append(f"gripper_feedback_closed = {closed} and gripper_feedback_open = "
-                        f"{opened} must be two different finite readings")
+                        f"{opened} must be two different finite readings within "
+                        f"±{FEEDBACK_MAX:g}")
     if not (math.isfinite(s.gripper_max_opening_m) and 0.0 < s.gripper_max_opening_m <= 0.5):
         problems.append(f"gripper_max_opening_m = {s.gripper_max_opening_m} is outside "
                         "(0, 0.5] m")

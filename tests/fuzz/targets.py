@@ -10,8 +10,10 @@ in ``make fuzz``). The same functions serve both.
   never an exception (a broken chunk is a refusal with reason codes, not a crash).
 - ``scenario``: :func:`kernel.scenario.load_scenario` (scenario or journal): a scenario or
   ``ScenarioError``.
-- ``manifest``: :func:`kernel.cli_run.checked_manifest` (what ``warden run`` checks before
-  anything starts): a manifest or ``ManifestError``.
+- ``manifest``: :func:`preflight`, everything ``warden run`` checks before anything starts
+  (:func:`kernel.cli_run.checked_manifest`, then the world's own checks: the ``[driver]``
+  settings against the driver's settings table, the clock, the operator): it passes, or
+  raises ``ManifestError`` or ``DriverInitError`` (both exit 2).
 """
 
 from __future__ import annotations
@@ -21,11 +23,15 @@ import shutil
 import tempfile
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
+from unittest import mock
 
 from assurance.envelope import Chunk, MalformedChunk, decode_wire_chunk
+from drivers.base import DriverInitError
 from kernel import wire
+from kernel.app.compose import world_for
 from kernel.cli_run import checked_manifest
-from kernel.manifest import ManifestError
+from kernel.manifest import Manifest, ManifestError
 from kernel.scenario import ScenarioError, load_scenario
 from kernel.wire import MessageType, ProtocolViolation
 
@@ -74,9 +80,43 @@ def manifest(data: bytes) -> None:
     path = _DIRECTORY / "input.toml"
     path.write_bytes(data)
     try:
-        checked_manifest(path)
-    except ManifestError:
+        preflight(path)
+    except (ManifestError, DriverInitError):
         return
+
+
+class WouldStart(Exception):
+    """The world got as far as starting an emulator process or the in-process plant: every
+    check ``warden run`` makes before that passed."""
+
+
+def _would_start(*_: Any, **__: Any) -> Any:
+    raise WouldStart
+
+
+def preflight(path: Path) -> Manifest:
+    """Everything ``warden run`` checks before a device, an emulator, a plant or a server
+    starts: :func:`checked_manifest` (manifest, ``[policy]`` settings, ``[task]``, the clock),
+    then :func:`kernel.app.compose.world_for` (the ``[driver]`` table against the driver's
+    settings, with the emulator's address stood in, and the emulator's arguments) with the
+    emulator process and the MuJoCo plant replaced by a stand-in that stops there. With
+    ``emulator.launch = false`` the driver is built and never connected.
+
+    Returns:
+        The manifest, when every check passed.
+
+    Raises:
+        ManifestError, DriverInitError: the refusals ``warden run`` turns into exit 2.
+    """
+    loaded = checked_manifest(path)
+    with (mock.patch("stubs.cell.emulated.EmulatorProcess", _would_start),
+          mock.patch("stubs.cell.sim_world.SimWorld", _would_start)):
+        try:
+            world = world_for(loaded)
+        except WouldStart:
+            return loaded
+    world.close()  # a DeviceWorld: its driver was built, never connected
+    return loaded
 
 
 TARGETS: dict[str, Callable[[bytes], None]] = {

@@ -7,11 +7,16 @@ Entry points driven:
   replay on the virtual clock, output): exit 0, or 2 naming the file. A journal may also exit 1,
   the replay's verdict that a mutated journal no longer reproduces its recorded commands, or 3,
   a journal whose last line damage left incomplete (replayed up to it).
-- manifests: :func:`kernel.cli_run.checked_manifest`, which is everything ``warden run`` does
-  before it starts a device, an emulator or a server (manifest loader, ``[task]`` and robot
-  model checks, the clock against the driver); running a whole cell per example is not a
-  loader's test. It returns a manifest or raises ``ManifestError``, which ``main`` turns into
-  exit 2 (``tests/cell/test_run_cli.py`` checks that path).
+- manifests: :func:`tests.fuzz.targets.preflight`, which is everything ``warden run`` does
+  before it starts a device, an emulator, the plant or a server (manifest loader, ``[policy]``
+  settings, ``[task]`` and robot model checks, the clock against the driver, then the world's
+  own checks: the ``[driver]`` table against the driver's settings, with the emulator process
+  and the plant replaced by a stand-in that stops there); running a whole cell per example is
+  not a loader's test. It passes or raises ``ManifestError`` or ``DriverInitError``, which
+  ``main`` turns into exit 2 (``tests/cell/test_run_cli.py`` and
+  ``tests/cli/test_settings_bounds_cli.py`` check that path). A second property aims the
+  mutations at the ``[driver]`` and ``[policy]`` tables, with every key of their settings
+  (the ones a shipped manifest leaves at their default too) given extreme numbers.
 
 Inputs start from the shipped files (``manifests/*.toml``, ``manifests/scenarios/*.json``) and a
 journal recorded by ``warden run --clock virtual --cycles 1``, mutated by
@@ -21,11 +26,15 @@ nesting, 5000-digit integers, and byte-level damage.
 
 from __future__ import annotations
 
+import copy
+import dataclasses
 import io
 import json
+import math
 import os
 import sys
 import tomllib
+import typing
 from pathlib import Path
 from typing import Any
 
@@ -33,10 +42,19 @@ import pytest
 from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
+from drivers.base import DriverInitError
+from drivers.settings import settings_from_mapping
 from kernel.cli import main
-from kernel.cli_run import checked_manifest
-from kernel.manifest import ManifestError
+from kernel.manifest import Manifest, ManifestError
+from kernel.settings import PolicySettings
 from tests.fuzz.mutate import byte_mutated, mutated, to_json, to_toml
+from tests.fuzz.settings_use import (
+    ADDRESS_STAND_INS,
+    DRIVER_SETTINGS,
+    use_driver_settings,
+    use_policy,
+)
+from tests.fuzz.targets import preflight
 
 ROOT = Path(__file__).resolve().parents[2]
 SCALE = max(1, int(os.environ.get("WARDEN_FUZZ_SCALE", "1")))
@@ -139,18 +157,79 @@ def test_mutated_manifests_load_or_are_refused(workdir: Path, data: st.DataObjec
     raw = data.draw(_damaged(text.encode()), label="bytes")
     path = workdir / "cell.toml"
     path.write_bytes(raw)
+    _check_preflight(path)
+
+
+def _check_preflight(path: Path) -> Manifest | None:
+    """Accepted, or refused the way ``warden run`` exits 2 (naming the file); any other
+    exception escapes and fails the property."""
     try:
-        checked_manifest(path)
-        event("loaded")
+        loaded = preflight(path)
     except ManifestError as error:
         event(f"refused: {str(error).split(': ')[1][:40]}")
         assert str(error).startswith(f"{path}") or str(error).startswith("--"), error
+        return None
+    except DriverInitError as error:  # "warden: cannot start the device: ..."
+        event(f"refused by the driver: {error.device}")
+        assert f"{path}: driver" in str(error), error
+        return None
+    event("passed")
+    return loaded
+
+
+VENDOR_MANIFESTS = sorted(name for name, doc in MANIFESTS.items()
+                          if doc["driver"]["name"] in DRIVER_SETTINGS)
+SETTING_NUMBERS = [0, -1, 1, 100.0, 0.5, 1e-9, 5e-324, 65536, 2**31, 2**63 - 1, 1e300, math.inf,
+                   -math.inf, math.nan]
+"""The class of value the audit found getting through: zero and signs, the subnormal, the
+integer edges, absurd magnitudes, inf and NaN."""
+
+
+def _keys(cls: type) -> list[tuple[str, bool]]:
+    """(key, holds a list) for each numeric setting of ``cls`` (the driver's name left out)."""
+    hints = typing.get_type_hints(cls)
+    keys = []
+    for field in dataclasses.fields(cls):
+        hint, args = hints[field.name], typing.get_args(hints[field.name])
+        if hint in (int, float) or (type(None) in args and {int, float} & set(args)):
+            keys.append((field.name, False))
+        elif typing.get_origin(hint) is tuple and args and args[0] in (int, float):
+            keys.append((field.name, True))
+    return keys
+
+
+@PROPERTY
+@given(data=st.data(), name=st.sampled_from(VENDOR_MANIFESTS))
+def test_mutated_driver_and_policy_settings_are_refused_before_anything_starts(
+        workdir: Path, data: st.DataObject, name: str) -> None:
+    """Extreme numbers in ``[driver]`` and ``[policy]`` (every key of their settings, set or
+    left at its default): refused with exit 2 before anything starts, or usable by the run."""
+    doc = copy.deepcopy(MANIFESTS[name])
+    driver = doc["driver"]["name"]
+    joints = len(doc["robot"]["velocity_limits"])
+    tables = {"driver": _keys(DRIVER_SETTINGS[driver]), "policy": _keys(PolicySettings)}
+    for _ in range(data.draw(st.integers(1, 3), label="changes")):
+        table = data.draw(st.sampled_from(sorted(tables)), label="table")
+        key, is_list = data.draw(st.sampled_from(tables[table]), label="key")
+        number = data.draw(st.sampled_from(SETTING_NUMBERS), label=f"{table}.{key}")
+        doc[table][key] = [*doc[table].get(key, [1] * joints)[:-1], number] if is_list else (
+            number)
+    if data.draw(st.integers(0, 3), label="mutated further") == 0:
+        doc["driver"] = data.draw(mutated(doc["driver"]), label="driver table")
+    path = workdir / "settings.toml"
+    path.write_text(to_toml(doc))
+    loaded = _check_preflight(path)
+    if loaded is not None:
+        use_policy(loaded.policy, loaded.core.control_period_ns)
+        table = {**ADDRESS_STAND_INS[driver], **loaded.driver_settings}
+        use_driver_settings(settings_from_mapping(DRIVER_SETTINGS[driver], table, "driver"),
+                            loaded.core.control_period_ns / 1e9)
 
 
 def test_the_shipped_files_pass_unmutated(workdir: Path, journal: list[Any]) -> None:
     """The starting points are valid: a mutation is what a refusal is about."""
     for name in MANIFESTS:
-        checked_manifest(ROOT / "manifests" / name)
+        preflight(ROOT / "manifests" / name)
     path = workdir / "journal.jsonl"
     header, events, _ = journal
     path.write_text("\n".join(json.dumps(line) for line in [header, *events]))
