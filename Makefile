@@ -29,6 +29,9 @@ bench: $(STAMP)
 	$(BIN)/python bench/e2e.py
 	$(BIN)/python bench/kinematics.py
 	$(BIN)/python bench/drivers.py
+	$(BIN)/python bench/cells.py
+	$(BIN)/python bench/flood.py
+	$(BIN)/python bench/link_loss.py
 
 # Coverage-guided fuzzing of the wire decoder, the scenario loader and the manifest loader
 # (tests/fuzz): FUZZ_SECONDS per target with atheris, then the hypothesis fuzz and property tests

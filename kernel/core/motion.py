@@ -219,12 +219,17 @@ def _contact(m: MotionState, ctx: MotionContext, command: Cmd, target: np.ndarra
     elif contact.state is ContactState.IDLE:
         contact.hold_at(measured)
     offer = np.asarray(target)[ctx.arm] if bounded and target is not None else None
-    law = contact.step(ctx.t, ctx.config.control_period_ns * 1e-9, m.force, offer)
+    period_s = ctx.config.control_period_ns * 1e-9
+    law = contact.step(ctx.t, period_s, m.force, offer)
     # The law's targets go out as they are: a straight line in task space is a curve in joint
     # space, and an interpolator following it would cut the corner by a millimetre, more than
     # a hole's clearance. They are compliance targets, and continuous: the law starts (and a
     # force-aware retreat starts) where the arm is measured, which is where it already is.
-    _restart(m, law.q)  # clips into the limits: the model's own may be wider than the robot's
+    # Continuous is not slow enough by itself: no target moves faster than the joints' velocity
+    # limits (a trial's speed_scale lowers them below what the law's 3 cm/s asks of a wrist).
+    reach = ctx.config.limits.velocity[ctx.arm] * period_s
+    last = _commanded_array(m)
+    _restart(m, last + np.clip(law.q - last, -reach, reach))  # and clipped into the limits
     q = tuple(_commanded_array(m).tolist())
     compliant = ctx.config.motion.impedance
     stiffness = tuple(law.stiffness.tolist()) if compliant else ()
