@@ -35,8 +35,14 @@ def sim_world(manifest: Manifest) -> SimWorld:
         raise ManifestError(f"{manifest.path}: driver.{key}: unknown key (the sim driver "
                             "takes no settings)")
     port = manifest.safety.sim_port if manifest.safety is not None else 0
+    plant = MujocoPlant()
+    period_ns = manifest.core.control_period_ns
+    if period_ns % plant.timestep_ns:
+        raise ManifestError(f"{manifest.path}: timing.control_period_ms: {period_ns / 1e6:g} ms "
+                            "is not a whole number of the simulated plant's "
+                            f"{plant.timestep_ns / 1e6:g} ms steps")
     try:
-        return SimWorld(manifest.core.control_period_ns, control_port=port)
+        return SimWorld(period_ns, plant=plant, control_port=port)
     except OSError as error:
         raise ManifestError(f"{manifest.path}: safety.sim_port: cannot serve the simulated "
                             f"world's control port on {CONTROL_HOST}:{port} ({error})") from None

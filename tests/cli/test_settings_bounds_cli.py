@@ -178,3 +178,12 @@ def test_the_dynamixel_baud_rates_open_in_the_sdk_and_the_emulator() -> None:
         assert rate in SDK_BAUD_RATES and port.getCFlagBaud(rate) == rate
         assert rate in BAUD_CODES
     assert 1_000_000 in BAUD_RATES and 4_500_000 not in BAUD_RATES
+
+
+def test_a_period_the_simulated_plant_cannot_step_exits_2(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The simulated world steps its plant a whole number of 2 ms steps per control period."""
+    code, err, runs = _run(tmp_path, "sim-ur5e.toml",
+                           ("control_period_ms = 2\n", "control_period_ms = 2.5\n"), capsys)
+    _assert_refused(code, err, runs, tmp_path / "cell.toml",
+                    "timing.control_period_ms: 2.5 ms is not a whole number")

@@ -106,10 +106,10 @@ async def test_wrong_port_path_is_init_error(tmp_path: Any) -> None:
     await driver.aclose()
 
 
-async def test_baud_rate_outside_sdk_list_is_init_error(bus: BusEmulator) -> None:
-    driver = DynamixelDriver(settings(bus.port, baud=123_456))
-    with pytest.raises(DriverInitError, match=r"baud rate 123456 .* dynamixel_sdk supports"):
-        await driver.connect()
+def test_baud_rate_outside_the_servos_rates_is_refused_in_the_settings(bus: BusEmulator) -> None:
+    # Refused before any port is opened; the driver's own check at connect stays as a backstop.
+    with pytest.raises(ValueError, match=r"baud: 123456 is not a rate"):
+        settings(bus.port, baud=123_456)
 
 
 async def test_baud_rate_the_bus_does_not_use_is_init_error(bus: BusEmulator) -> None:
