@@ -4,7 +4,8 @@ In order, before anything moves:
 1. the manifest's signature verifies, in this process, on the very bytes that are then parsed
    (read once, so what was signed is what runs);
 2. it carries a trial envelope (``[trial]``: max cycles, max duration, a workspace box for the
-   tool, a speed scale, a wrist force limit), the state watchdog, and no simulated operator;
+   tool, a speed scale, a wrist force limit), the state watchdog, the robot model's digest (so
+   the signature covers the model too), and no simulated operator;
 3. the independent safety monitor answers that it is alive, connected and watching;
 4. the trial card says what is bounded, who can stop it and how, and where the journal goes;
 5. a human confirms: at the terminal (typing the run's name), or with
@@ -28,9 +29,11 @@ from drivers import registry
 from kernel import signing
 from kernel.app.session import RunContext
 from kernel.manifest import Manifest, ManifestError, TrialEnvelope, load_manifest
+from kernel.robot_model import digest
 from kernel.safety.status import ask
 from kernel.scenario.config import build_config
 from kernel.scenario.fields import ScenarioError, Where
+from kernel.scenario.kinematics import model_spec
 
 ENVELOPE_KEYS = ("max_cycles", "max_duration_s", "workspace_lower", "workspace_upper",
                  "speed_scale", "max_wrist_force_n")
@@ -59,10 +62,30 @@ def load_trial(path: Path, keys: Path) -> Manifest:
         raise ManifestError(f"{path}: timing.state_timeout_ms: missing: a trial needs the "
                             "state watchdog")
     _device_watchdog(manifest)
+    _signed_model(manifest)
     if manifest.cell.simulated_operator:
         raise ManifestError(f"{path}: cell.simulated_operator: must be false in a trial (only a "
                             "human accepts recovery)")
     return _bounded(manifest, envelope)
+
+
+def _signed_model(manifest: Manifest) -> None:
+    """The robot model is a file of its own: the signature covers it only through its digest,
+    and the workspace box and the tool's pose are judged through it.
+
+    Raises:
+        ManifestError: a model without ``robot.model_sha256`` (the message gives the digest).
+    """
+    robot = manifest.sections["robot"]
+    where = Where(str(manifest.path), "robot")
+    try:
+        spec = model_spec(robot, where)
+    except ScenarioError as error:
+        raise ManifestError(str(error)) from None
+    if spec is not None and robot.get("model_sha256") is None:
+        raise ManifestError(f"{manifest.path}: robot.model_sha256: missing: a trial's signature "
+                            f"must cover the robot model {spec.path.name} too; add "
+                            f'model_sha256 = "{digest(spec.path)}" to [robot] and sign again')
 
 
 def _device_watchdog(manifest: Manifest) -> str:

@@ -21,6 +21,7 @@ from typing import Any
 import pytest
 
 from kernel.cli_operator import send
+from kernel.robot_model import BUILTIN, digest
 from kernel.signing import sign
 from stubs.ur_controller.launch import EmulatedController
 from tests.cell.harness import MANIFESTS
@@ -51,10 +52,18 @@ def trial_manifest(tmp: Path, *, trial: str = TRIAL, operator: bool = True,
     if operator:
         text = text.replace("cycles = 3", "cycles = 1\nsimulated_operator = false", 1)
     text += f'\n[operator]\nsocket = "{tmp / "operator.sock"}"\ngroup = "root"\n'
-    text += trial + extra
+    text = with_model_digest(text) + trial + extra
     path = tmp / "trial-cell.toml"
     path.write_text(text)
     return path
+
+
+def with_model_digest(text: str) -> str:
+    """A trial's robot section names its model's digest (the signature then covers it)."""
+    named = 'kinematics = "ur5e"'
+    if named not in text:
+        raise ValueError("the manifest does not name the built-in ur5e model")
+    return text.replace(named, f'model_sha256 = "{digest(BUILTIN["ur5e"].path)}"\n{named}', 1)
 
 
 def run_trial(manifest: Path, tmp: Path, *extra: str,
@@ -103,6 +112,28 @@ def test_signed_manifest_without_an_envelope_is_refused(tmp_path: Path) -> None:
     _refused(run_trial(manifest, tmp_path), tmp_path, "trial", "envelope")
 
 
+def test_a_model_the_signature_does_not_cover_is_refused(tmp_path: Path) -> None:
+    manifest = trial_manifest(tmp_path)
+    named = f'model_sha256 = "{digest(BUILTIN["ur5e"].path)}"\n'
+    assert named in manifest.read_text()
+    manifest.write_text(manifest.read_text().replace(named, "", 1))
+    sign(manifest, TEST_SIGNER)
+    message = _refused(run_trial(manifest, tmp_path), tmp_path, "robot.model_sha256: missing")
+    assert named.strip() in message  # what to add, ready to copy
+
+
+def test_a_model_file_changed_after_signing_is_refused(tmp_path: Path) -> None:
+    model = tmp_path / "arm.xml"
+    model.write_bytes(BUILTIN["ur5e"].path.read_bytes())
+    manifest = trial_manifest(tmp_path)
+    text = manifest.read_text().replace('kinematics = "ur5e"', f'model = "{model}"\n'
+                                        f'tcp_frame = "{BUILTIN["ur5e"].tcp_frame}"', 1)
+    manifest.write_text(text)
+    sign(manifest, TEST_SIGNER)
+    model.write_bytes(model.read_bytes() + b"<!-- edited -->\n")
+    _refused(run_trial(manifest, tmp_path), tmp_path, "robot.model_sha256", "changed")
+
+
 @pytest.mark.parametrize(("key", "line"), [
     ("trial.speed_scale", "speed_scale = 0.5"),
     ("trial.max_wrist_force_n", "max_wrist_force_n = 150.0"),
@@ -129,7 +160,7 @@ def _ur_trial(tmp: Path, emulator: EmulatedController, trial: str = TRIAL,
     manifest = ur_manifest(tmp, emulator.host, name=name,
                            device_timeout_ms=UR_DEVICE_TIMEOUT_MS)
     text = manifest.read_text().replace("watchdog_periods = 0", f"watchdog_periods = {watchdog}")
-    manifest.write_text(text + trial)
+    manifest.write_text(with_model_digest(text) + trial)
     sign(manifest, TEST_SIGNER)
     return manifest
 
