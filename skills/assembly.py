@@ -50,6 +50,8 @@ class CycleTiming:
     grasp_s: float = 0.35
     release_s: float = 0.25
     approach_timeout_s: float = 8.0
+    """Time the policy has to bring the part over the hole, counted only while the core is
+    RUNNING: a fallback's hold (a human recovering, a reconnection) is not the policy's time."""
     insert_timeout_s: float = 4.0
     request_interval_s: float = 0.1
     settle_rad: float = 0.0015
@@ -145,6 +147,8 @@ class AssemblyRunner:
         self._view: CoreView | None = None
         self._requests: list[Request] = []
         self._since_ns = 0
+        self._seen_ns = 0
+        """The instant of the previous update (a paused step's clock moves on from it)."""
         self._last_request_ns = -(10**18)
         self._failure = ""
         self._peak_force_n = 0.0
@@ -166,6 +170,9 @@ class AssemblyRunner:
     def update(self, sensed: Sensed, view: CoreView) -> list[Request]:
         """Advance the cycle; returns what to ask the core for (in order)."""
         self._view = view
+        if self.step is Step.APPROACH and view.mode is not Mode.RUNNING:
+            self._since_ns += sensed.t_ns - self._seen_ns  # the approach's clock is paused
+        self._seen_ns = sensed.t_ns
         if self.step is not Step.DONE:
             handler = _HANDLERS.get(self.step, AssemblyRunner._planned_step)
             request = handler(self, sensed, view.phase, view.mode)
