@@ -31,6 +31,10 @@ def add_commands(commands: Any) -> None:
                      help="also write the summary as JSON to FILE ('-' for stdout)")
     run.add_argument("--journal-dir", help="where run directories go (default: the manifest's)")
     run.add_argument("--no-journal", action="store_true", help="do not record a journal")
+    run.add_argument("--keys", metavar="DIR",
+                     help="refuse a manifest not signed by a key in DIR; the signature is checked "
+                          "in this process on the very bytes that then run (the systemd unit "
+                          "passes /etc/warden/keys)")
     run.add_argument("--log-format", choices=("auto", "json", "console"), default="auto",
                      help="log lines on stderr: JSON (auto when stderr is not a terminal, e.g. "
                           "under systemd) or plain console lines")
@@ -51,7 +55,7 @@ and the run ended early (docs/operations.md, exit codes)."""
 
 def run_command(args: argparse.Namespace) -> int:
     configure_logging(args)
-    manifest = checked_manifest(args.manifest, args.cycles, args.clock)
+    manifest = checked_manifest(args.manifest, args.cycles, args.clock, args.keys)
     journal_dir = journal_directory(manifest, args.journal_dir, args.no_journal)
     summary = asyncio.run(_run(manifest, journal_dir)) if manifest.cell.clock is (
         ClockKind.VIRTUAL) else run_wall(manifest, journal_dir)
@@ -120,17 +124,32 @@ def configure_logging(args: argparse.Namespace) -> None:
 
 
 def checked_manifest(path: str | Path, cycles: int | None = None,
-                     clock: str | None = None) -> Manifest:
+                     clock: str | None = None, keys: str | Path | None = None) -> Manifest:
     """The manifest ``warden run`` runs, with the command line's overrides, checked as far as
     anything can be checked before a device, an emulator or a server starts. (The property
     tests of ``tests/fuzz`` drive this: running the cell itself is not a loader's business.)
+    With ``keys``, the file is read once and its signature verified on those bytes, which are
+    the ones parsed (a file swapped after the check is never run).
 
     Raises:
-        ManifestError: naming the file (or the option) and the key; the CLI exits 2.
+        ManifestError: naming the file (or the option) and the key, or why the signature does
+            not verify; the CLI exits 2.
     """
-    manifest = _with_overrides(load_manifest(path), cycles, clock)
+    manifest = _with_overrides(_loaded(Path(path), keys), cycles, clock)
     preflight(manifest)
     return manifest
+
+
+def _loaded(path: Path, keys: str | Path | None) -> Manifest:
+    if keys is None:
+        return load_manifest(path)
+    from kernel import signing
+
+    try:
+        verified = signing.verify(path, keys)
+    except signing.SignatureError as error:
+        raise ManifestError(f"{error} (--keys {keys})") from None
+    return load_manifest(path, content=verified.content, signer=verified.key_id)
 
 
 def preflight(manifest: Manifest) -> None:

@@ -77,6 +77,7 @@ def test_commands_parse_with_the_warden_cli() -> None:
     assert start[0] == VENV_WARDEN
     run = parser.parse_args(start[1:])
     assert run.command == "run" and run.manifest == "/etc/warden/cell.toml"
+    assert run.keys == "/etc/warden/keys"  # verified in-process, on the bytes that run
     pre = shlex.split(_one("ExecStartPre"))
     check = parser.parse_args(pre[1:])
     assert check.handler is signing._verify_command
