@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from kernel import cli_safety, signing
+from kernel import cli_run, cli_safety, signing
 from kernel.safety.service import PRIORITY
 from kernel.safety.settings import DEFAULT_DIRECTORY
 
@@ -71,13 +71,14 @@ def test_commands_parse_and_name_wardens_manifest() -> None:
     parser = argparse.ArgumentParser(prog="warden")
     commands = parser.add_subparsers(dest="command", required=True)
     cli_safety.add_commands(commands)
+    cli_run.add_commands(commands)
     signing.add_commands(commands)
     start = shlex.split(_one("ExecStart"))
     assert start[0] == VENV_WARDEN
     run = parser.parse_args(start[1:])
     assert run.handler is cli_safety.safety_command
-    warden_manifest = shlex.split(_one("ExecStart", WARDEN_UNIT))[-1]
-    assert run.target == [warden_manifest]
+    wardens = parser.parse_args(shlex.split(_one("ExecStart", WARDEN_UNIT))[1:])
+    assert run.target == [wardens.manifest]
     assert _one("ExecStartPre") == _one("ExecStartPre", WARDEN_UNIT)
 
 
