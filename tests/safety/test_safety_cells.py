@@ -190,6 +190,40 @@ def test_a_simulated_joint_past_the_monitors_limit_is_braked(tmp_path: Path) -> 
     assert monitor.events("safety stop")[0]["answer"] == "brake engaged"
 
 
+SHIPPED_VELOCITY = "velocity_limits = [3.1416, 3.1416, 3.1416, 3.1416, 3.1416, 3.1416]"
+SLOW_RAD_S = 0.8
+"""The monitor's own velocity limit in the speed test: warden's planner moves the shoulder at
+up to about 1.6 rad/s in the transport, inside warden's limits (3.14) and past this one."""
+
+
+def test_a_simulated_joint_faster_than_the_monitors_limit_is_braked(tmp_path: Path) -> None:
+    """The speed check in a running cell: the monitor reads its limits from its own copy of
+    the manifest, and stops the arm on the first sample past them, whatever warden allows."""
+    port = free_port()
+    manifest = sim_manifest(tmp_path, port)
+    slow = manifest.with_name("slow.toml")
+    text = manifest.read_text()
+    assert text.count(SHIPPED_VELOCITY) == 1
+    slow.write_text(text.replace(SHIPPED_VELOCITY, "velocity_limits = "
+                                 f"[{', '.join([str(SLOW_RAD_S)] * 6)}]"))
+    world = ("127.0.0.1", port)
+    warden = Warden(manifest, tmp_path)
+    monitor: Monitor | None = None
+    try:
+        wait_for(lambda: _answers(world, warden), "the simulated world's control port")
+        monitor = Monitor(slow, tmp_path)
+        assert monitor.wait_watching()["ok"]
+        wait_for(lambda: _braked_at_rest(world), "the brake", timeout_s=20, poll_s=0.01)
+        assert inject(world, "brake_state")["ignored"] > 0  # warden kept commanding, in vain
+    finally:
+        warden.stop()
+        if monitor is not None:
+            assert monitor.stop() == 0
+    stop = monitor.events("safety stop")[0]
+    assert stop["answer"] == "brake engaged"
+    assert all(v.startswith("velocity") for v in stop["violations"]), stop["violations"]
+
+
 def _answers(world: tuple[str, int], warden: Warden) -> bool:
     assert warden.alive(), warden.log_path.read_text()[-2000:]
     try:
