@@ -12,9 +12,9 @@ chunk has run out, the pre-contact approach holds on an empty queue (UNDERRUN) a
 ends (the link never looked dead, so it is not DEGRADED, which a new handshake would end). The
 test then does what the operator does once the policy answers again: ``warden operator
 accept-recovery`` over the real socket, through the CLI's entry point (in this process: a new
-interpreter costs seconds of imports on a loaded test machine). The decision log must show the way back: SAFE_HOLD → RUNNING on
-RECOVERY_ACCEPTED, a new queue epoch that the chunks admitted afterwards carry, and the cycle
-verified; the journal replays identically.
+interpreter costs seconds of imports on a loaded test machine). The decision log must show the
+way back: SAFE_HOLD → RUNNING on RECOVERY_ACCEPTED, a new queue epoch that the chunks admitted
+afterwards carry, and the cycle verified; the journal replays identically.
 """
 
 from __future__ import annotations
