@@ -25,7 +25,13 @@ from kernel.robot_model import BUILTIN, digest
 from kernel.signing import sign
 from stubs.ur_controller.launch import EmulatedController
 from tests.cell.harness import MANIFESTS
-from tests.safety.support import FORCE_LIMIT_N, Monitor, ur_manifest, wait_for
+from tests.safety.support import (
+    FORCE_LIMIT_N,
+    Monitor,
+    safety_table,
+    ur_manifest,
+    wait_for,
+)
 
 ROOT = MANIFESTS.parent
 TEST_KEYS = MANIFESTS / "keys" / "test-only"
@@ -215,6 +221,24 @@ def test_the_device_watchdog_switched_off_is_refused(tmp_path: Path) -> None:
 def test_no_safety_monitor_is_refused(tmp_path: Path, emulator: EmulatedController) -> None:
     done = run_trial(_ur_trial(tmp_path, emulator), tmp_path)
     _refused(done, tmp_path, "safety.status_socket", "no safety monitor answers")
+
+
+def test_a_monitor_that_cannot_stop_the_arm_is_refused(tmp_path: Path) -> None:
+    """One Dynamixel serial bus, one master: the monitor can only watch the heartbeat and
+    report, the servos' Bus Watchdog is the only stop outside warden, and a trial needs more."""
+    text = (MANIFESTS / "sim-dynamixel.toml").read_text()
+    text = text.replace("cycles = 3", "cycles = 1\nsimulated_operator = false", 1)
+    text += f'\n[operator]\nsocket = "{tmp_path / "operator.sock"}"\ngroup = "root"\n'
+    manifest = tmp_path / "dynamixel-trial.toml"
+    manifest.write_text(with_model_digest(text) + TRIAL + safety_table(tmp_path))
+    sign(manifest, TEST_SIGNER)
+    monitor = Monitor(manifest, tmp_path)
+    try:
+        assert not monitor.wait_watching()["can_stop"]
+        done = run_trial(manifest, tmp_path)
+    finally:
+        monitor.stop()
+    _refused(done, tmp_path, "the safety monitor cannot stop this arm", "Bus Watchdog")
 
 
 @pytest.mark.slow

@@ -13,10 +13,11 @@ control script, and the emulator's own cycle was once held back for 0.3 s at war
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -163,17 +164,36 @@ def _crossing(truth, warden: Warden) -> _Crossed:  # type: ignore[no-untyped-def
     return wait_for(past, "the shoulder to cross the monitor's limit", poll_s=0.002)
 
 
-def test_a_simulated_joint_past_the_monitors_limit_is_braked(tmp_path: Path) -> None:
+@contextlib.contextmanager
+def _sim_cell_watched(tmp_path: Path, monitors: Callable[[Path], Path],
+                      ) -> Iterator[tuple[tuple[str, int], Warden, Monitor]]:
+    """warden running the simulated cell, and a monitor watching it with the limits of
+    ``monitors(warden's manifest)``; yields the world's control address, warden and the
+    monitor.
+    Both are stopped on the way out, and the monitor's first stop must have braked."""
     port = free_port()
     manifest = sim_manifest(tmp_path, port)
-    tight = with_shoulder_limit(manifest, SHOULDER_LIMIT, "tight.toml")
     world = ("127.0.0.1", port)
     warden = Warden(manifest, tmp_path)
     monitor: Monitor | None = None
     try:
         wait_for(lambda: _answers(world, warden), "the simulated world's control port")
-        monitor = Monitor(tight, tmp_path)
+        monitor = Monitor(monitors(manifest), tmp_path)
         assert monitor.wait_watching()["ok"]
+        yield world, warden, monitor
+        assert inject(world, "brake_state")["ignored"] > 0  # warden kept commanding, in vain
+    finally:
+        warden.stop()
+        if monitor is not None:
+            assert monitor.stop() == 0
+    assert monitor.events("safety stop")[0]["answer"] == "brake engaged"
+
+
+def test_a_simulated_joint_past_the_monitors_limit_is_braked(tmp_path: Path) -> None:
+    def tight(manifest: Path) -> Path:
+        return with_shoulder_limit(manifest, SHOULDER_LIMIT, "tight.toml")
+
+    with _sim_cell_watched(tmp_path, tight) as (world, warden, _):
         assert inject(world, "ground_truth")["q"][1] < SHOULDER_LIMIT  # in time to see it
         crossed = _crossing(lambda: inject(world, "ground_truth"), warden)
         wait_for(lambda: _braked_at_rest(world), "the brake", timeout_s=5, poll_s=0.002)
@@ -181,13 +201,7 @@ def test_a_simulated_joint_past_the_monitors_limit_is_braked(tmp_path: Path) -> 
         print(f"shoulder crossed its limit at {crossed.speed:.2f} rad/s: braked and at rest "
               f"{elapsed * 1e3:.0f} ms later")
         assert elapsed < CHECK_PERIOD_S + MUJOCO_STOPPING_S + MARGIN_S
-        assert inject(world, "brake_state")["ignored"] > 0  # warden kept commanding, in vain
         assert _still_for(lambda: inject(world, "ground_truth")["q"], 0.5) < 1e-3
-    finally:
-        warden.stop()
-        if monitor is not None:
-            assert monitor.stop() == 0
-    assert monitor.events("safety stop")[0]["answer"] == "brake engaged"
 
 
 SHIPPED_VELOCITY = "velocity_limits = [3.1416, 3.1416, 3.1416, 3.1416, 3.1416, 3.1416]"
@@ -199,29 +213,18 @@ up to about 1.6 rad/s in the transport, inside warden's limits (3.14) and past t
 def test_a_simulated_joint_faster_than_the_monitors_limit_is_braked(tmp_path: Path) -> None:
     """The speed check in a running cell: the monitor reads its limits from its own copy of
     the manifest, and stops the arm on the first sample past them, whatever warden allows."""
-    port = free_port()
-    manifest = sim_manifest(tmp_path, port)
-    slow = manifest.with_name("slow.toml")
-    text = manifest.read_text()
-    assert text.count(SHIPPED_VELOCITY) == 1
-    slow.write_text(text.replace(SHIPPED_VELOCITY, "velocity_limits = "
-                                 f"[{', '.join([str(SLOW_RAD_S)] * 6)}]"))
-    world = ("127.0.0.1", port)
-    warden = Warden(manifest, tmp_path)
-    monitor: Monitor | None = None
-    try:
-        wait_for(lambda: _answers(world, warden), "the simulated world's control port")
-        monitor = Monitor(slow, tmp_path)
-        assert monitor.wait_watching()["ok"]
+    def slow(manifest: Path) -> Path:
+        text = manifest.read_text()
+        assert text.count(SHIPPED_VELOCITY) == 1
+        path = manifest.with_name("slow.toml")
+        path.write_text(text.replace(SHIPPED_VELOCITY, "velocity_limits = "
+                                     f"[{', '.join([str(SLOW_RAD_S)] * 6)}]"))
+        return path
+
+    with _sim_cell_watched(tmp_path, slow) as (world, _, monitor):
         wait_for(lambda: _braked_at_rest(world), "the brake", timeout_s=20, poll_s=0.01)
-        assert inject(world, "brake_state")["ignored"] > 0  # warden kept commanding, in vain
-    finally:
-        warden.stop()
-        if monitor is not None:
-            assert monitor.stop() == 0
-    stop = monitor.events("safety stop")[0]
-    assert stop["answer"] == "brake engaged"
-    assert all(v.startswith("velocity") for v in stop["violations"]), stop["violations"]
+    violations = monitor.events("safety stop")[0]["violations"]
+    assert all(v.startswith("velocity") for v in violations), violations
 
 
 def _answers(world: tuple[str, int], warden: Warden) -> bool:
