@@ -242,6 +242,23 @@ def test_a_monitor_that_cannot_stop_the_arm_is_refused(tmp_path: Path) -> None:
 
 
 @pytest.mark.slow
+def test_a_monitor_that_has_lost_the_device_is_refused(
+        tmp_path: Path, emulator: EmulatedController) -> None:
+    """Alive and answering is not enough: a monitor that no longer sees the arm says so, and
+    the trial does not start."""
+    manifest = _ur_trial(tmp_path, emulator)
+    monitor = Monitor(manifest, tmp_path)
+    try:
+        assert monitor.wait_watching()["connected"]
+        emulator.inject("data_stall")
+        wait_for(lambda: not monitor.status()["ok"], "the monitor to report the lost device")
+        done = run_trial(manifest, tmp_path)
+    finally:
+        monitor.stop()
+    _refused(done, tmp_path, "the safety monitor is not ok")
+
+
+@pytest.mark.slow
 def test_a_monitor_watching_another_manifest_is_refused(
         tmp_path: Path, emulator: EmulatedController) -> None:
     watched = _ur_trial(tmp_path, emulator, name="watched.toml")
