@@ -8,6 +8,7 @@ not have started a device, a policy server or a journal.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import os
@@ -204,6 +205,22 @@ class _Trial:
             self.process.communicate()
 
 
+@contextlib.contextmanager
+def watched_trial(manifest: Path, tmp: Path) -> Iterator[tuple[Monitor, _Trial]]:
+    """The monitor watching ``manifest``, then ``warden trial`` on it waiting for its
+    confirmation; both ended on the way out."""
+    monitor = Monitor(manifest, tmp)
+    trial: _Trial | None = None
+    try:
+        monitor.wait_watching()
+        trial = _Trial(manifest, tmp)
+        yield monitor, trial
+    finally:
+        if trial is not None:
+            trial.kill()
+        monitor.stop()
+
+
 @pytest.fixture
 def emulator() -> Iterator[EmulatedController]:
     with EmulatedController(plant="mujoco") as controller:
@@ -282,20 +299,12 @@ def _git_head() -> str:
 def test_a_confirmed_trial_runs_inside_its_envelope(
         tmp_path: Path, emulator: EmulatedController) -> None:
     manifest = _ur_trial(tmp_path, emulator)
-    monitor = Monitor(manifest, tmp_path)
-    trial: _Trial | None = None
     revisions = {_git_head()}
-    try:
-        monitor.wait_watching()
-        trial = _Trial(manifest, tmp_path)
+    with watched_trial(manifest, tmp_path) as (monitor, trial):
         answer = trial.confirm()
         assert answer["ok"] and answer["uid"] == os.getuid(), answer
         code, summary, err = trial.finish()
         assert monitor.status()["stops"] == 0
-    finally:
-        if trial is not None:
-            trial.kill()
-        monitor.stop()
     assert code == 0, err[-3000:]
     assert summary["cycles"]["verified"] == 1
     assert summary["trial"]["signer"] == TEST_KEY_ID
@@ -326,17 +335,9 @@ def test_the_envelope_reached_ends_the_trial(tmp_path: Path,
     """A box whose floor lies above the part: the descent to grasp it leaves the box."""
     manifest = _ur_trial(tmp_path, emulator, trial=TRIAL.replace(
         "workspace_lower = [-0.80, -0.40, 0.00]", "workspace_lower = [-0.80, -0.40, 0.20]"))
-    monitor = Monitor(manifest, tmp_path)
-    trial: _Trial | None = None
-    try:
-        monitor.wait_watching()
-        trial = _Trial(manifest, tmp_path)
+    with watched_trial(manifest, tmp_path) as (_, trial):
         trial.confirm()
         code, summary, err = trial.finish()
-    finally:
-        if trial is not None:
-            trial.kill()
-        monitor.stop()
     assert code == 1, err[-3000:]
     assert "ENVELOPE" in summary["trial"]["ended"], summary["trial"]
     decisions = next((tmp_path / "runs").glob("*/decisions.jsonl")).read_text()

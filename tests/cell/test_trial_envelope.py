@@ -50,9 +50,9 @@ from tests.cell.test_trial import (
     TEST_SIGNER,
     TRIAL,
     _git_head,
-    _Trial,
     _ur_trial,
     trial_manifest,
+    watched_trial,
 )
 from tests.safety.support import Monitor, wait_for
 
@@ -348,11 +348,7 @@ def test_confirmed_at_the_terminal_the_trial_ends_when_its_duration_is_up(
 def test_the_monitor_no_longer_taking_the_heartbeat_ends_the_trial(
         tmp_path: Path, emulator: EmulatedController) -> None:
     manifest = _ur_trial(tmp_path, emulator)
-    monitor = Monitor(manifest, tmp_path)
-    trial: _Trial | None = None
-    try:
-        monitor.wait_watching()
-        trial = _Trial(manifest, tmp_path)
+    with watched_trial(manifest, tmp_path) as (monitor, trial):
         trial.confirm()
         wait_for(lambda: monitor.status()["heartbeat"]["state"] == "alive",
                  "warden's heartbeat at the monitor")
@@ -362,10 +358,6 @@ def test_the_monitor_no_longer_taking_the_heartbeat_ends_the_trial(
         finally:
             monitor.process.send_signal(signal.SIGCONT)
         wait_for(lambda: _at_rest(emulator), "the arm at rest", timeout_s=5)
-    finally:
-        if trial is not None:
-            trial.kill()
-        monitor.stop()
     assert code == 1, err[-3000:]
     ended = summary["trial"]["ended"]
     assert "the safety monitor stopped taking warden's heartbeat (EAGAIN)" in ended, ended
