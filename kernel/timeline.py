@@ -76,4 +76,20 @@ def _event(line: dict[str, Any]) -> str:
         return f"{head}queue {what}"
     if kind == "request":
         return f"{head}request inference (observation {line.get('observation_id')})"
+    if kind == "motion":
+        return f"{head}{_motion(line)}"
     return f"{head}{line}"
+
+
+def _motion(line: dict[str, Any]) -> str:
+    """``move #3 PLANNED, 1840.0 ms``, ``gripper SET, opening 0.085 m``, ``insert REFUSED
+    (why)``: the request, what the core decided, and what it carried."""
+    what = line["request"] + (f" #{line['move_id']}" if line.get("move_id") is not None else "")
+    extra = ""
+    if line.get("duration_ms") is not None:
+        extra += f", {line['duration_ms']} ms"
+    if line.get("opening") is not None:
+        extra += f", opening {line['opening']:.4f} m"
+    if line.get("detail"):
+        extra += f" ({line['detail']})"
+    return f"motion {what} {line['decision'].upper()}{extra}"

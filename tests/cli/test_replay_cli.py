@@ -7,9 +7,12 @@ import subprocess
 import sys
 from pathlib import Path
 
+import msgspec
 import pytest
 
 from kernel.cli import main
+from kernel.core.lines import MotionDecision, MotionLine, MotionRequest, encode
+from kernel.timeline import render
 
 ROOT = Path(__file__).resolve().parents[2]
 SEED = ROOT / "manifests" / "scenarios" / "seed_stale_chunk.json"
@@ -42,6 +45,31 @@ def test_pretty_timeline_names_the_refusals(capsys: pytest.CaptureFixture[str]) 
     text = capsys.readouterr().out
     assert "C41: REJECTED (PHASE_MISMATCH + STATE_DIVERGED)" in text
     assert "C41: IGNORED (DUPLICATE + OLD_QUEUE_EPOCH)" in text
+
+
+MOTION_LINES = (
+    MotionLine(t=120, request=MotionRequest.MOVE, decision=MotionDecision.PLANNED, move_id=3,
+               duration_ms=1840.5),
+    MotionLine(t=122, request=MotionRequest.MOVE, decision=MotionDecision.REFUSED, move_id=4,
+               detail="target is not finite or not inside the position limits"),
+    MotionLine(t=130, request=MotionRequest.GRIPPER, decision=MotionDecision.SET, opening=0.085),
+    MotionLine(t=140, request=MotionRequest.INSERT, decision=MotionDecision.STARTED),
+)
+
+
+def test_pretty_timeline_renders_motion_lines_readably() -> None:
+    """A run's motion lines (planner moves, the gripper, the contact owner's descent), decoded
+    from JSON as ``warden replay --pretty`` decodes them, read like every other kind: no raw
+    dict."""
+    decoded = [msgspec.json.decode(encode(line)) for line in MOTION_LINES]
+    text = list(render(decoded))
+    assert [line.split("▶ ", 1)[1] for line in text] == [
+        "motion move #3 PLANNED, 1840.5 ms",
+        "motion move #4 REFUSED (target is not finite or not inside the position limits)",
+        "motion gripper SET, opening 0.0850 m",
+        "motion insert STARTED",
+    ]
+    assert not any("{" in line for line in text)
 
 
 def test_check_passes_and_fails(tmp_path: Path) -> None:
