@@ -60,6 +60,8 @@ def _parser() -> argparse.ArgumentParser:
         description="Admit learned action chunks through identity, time, context, divergence "
                     "and feasibility gates; hand motion to the right owner.",
     )
+    parser.add_argument("--version", action="version", version=_version_text(),
+                        help="the installed warden's version and the git revision it runs from")
     commands = parser.add_subparsers(dest="command", required=True)
     rep = commands.add_parser(
         "replay", help="replay a scenario or run journal on a virtual clock",
@@ -78,6 +80,14 @@ def _parser() -> argparse.ArgumentParser:
     add_check_commands(commands)
     signing.add_commands(commands)
     return parser
+
+
+def _version_text() -> str:
+    """``warden 0.1.0 (revision 018d1bf...)``: the installed package's version and the commit a
+    journal's header would name (kernel/provenance.py), "unknown" outside a checkout."""
+    from kernel.provenance import revision, software_version
+
+    return f"warden {software_version()} (revision {revision()})"
 
 
 def _replay(args: argparse.Namespace) -> int:

@@ -21,12 +21,13 @@ def provenance(digest: str, manifest_path: Path, signer: str | None) -> dict[str
     return {
         "manifest": {"path": str(manifest_path.resolve()), "sha256": digest},
         "signer": signer,
-        "software": {"version": _version(), "revision": revision()},
+        "software": {"version": software_version(), "revision": revision()},
         "host": socket.gethostname(),
     }
 
 
-def _version() -> str:
+def software_version() -> str:
+    """The installed package's version (its metadata), or "unknown" when not installed."""
     try:
         return version("warden")
     except PackageNotFoundError:
