@@ -71,7 +71,7 @@ def run_command(manifest: str, args: argparse.Namespace) -> int:
 
 
 def status_command(manifest: str | None, args: argparse.Namespace) -> int:
-    from kernel.safety.status import ask
+    from kernel.safety.status import ask, socket_problem
 
     try:
         path = _status_path(manifest, args.socket)
@@ -84,7 +84,12 @@ def status_command(manifest: str | None, args: argparse.Namespace) -> int:
         print(f"warden safety: {path}: permission denied (only the monitor's group may ask)",
               file=sys.stderr)
         return EXIT_UNAVAILABLE
-    except (OSError, ValueError) as error:
+    except OSError as error:
+        print(f"warden safety: no safety monitor answers: {socket_problem(path, error)} (is "
+              "`warden safety MANIFEST` running with the same [safety] status_socket?)",
+              file=sys.stderr)
+        return EXIT_UNAVAILABLE
+    except ValueError as error:
         print(f"warden safety: {path}: no safety monitor answers ({error})", file=sys.stderr)
         return EXIT_UNAVAILABLE
     print(json.dumps(answer, indent=1))

@@ -16,6 +16,7 @@ import signal
 import threading
 from collections.abc import Iterator
 from dataclasses import dataclass
+from pathlib import Path
 
 import structlog
 
@@ -25,7 +26,7 @@ from kernel.safety.devices import DeviceUnreachable, DeviceWatch, watch_for
 from kernel.safety.heartbeat import HeartbeatReceiver
 from kernel.safety.monitor import Monitor
 from kernel.safety.settings import SafetySettings
-from kernel.safety.status import StatusServer
+from kernel.safety.status import StatusServer, socket_problem
 from kernel.shell.realtime import restore, try_realtime
 from kernel.shell.systemd import ServiceNotifier
 
@@ -86,7 +87,7 @@ def serve(path: str) -> None:
     with contextlib.ExitStack() as stack:
         heartbeat = _bound(lambda: HeartbeatReceiver(
             settings.heartbeat_path, chosen.gid, settings.heartbeat_timeout_ns,
-            settings.closing_timeout_ns), "heartbeat")
+            settings.closing_timeout_ns), "heartbeat", settings.heartbeat_path, chosen)
         stack.callback(heartbeat.close)
         watch = _connected(chosen)
         stack.callback(watch.close)
@@ -96,7 +97,7 @@ def serve(path: str) -> None:
                    "digest": manifest.digest}  # a trial checks this is its own manifest
         status = _bound(lambda: StatusServer(
             settings.status_path, chosen.gid, lambda: {**monitor.status(), "manifest": watched}),
-            "status")
+            "status", settings.status_path, chosen)
         stack.callback(status.close)
         _watch(chosen, monitor, status)
 
@@ -123,12 +124,14 @@ def _watch(chosen: Plan, monitor: Monitor, status: StatusServer) -> None:
     log.info("safety monitor stopped", checks=monitor.checks, stops=monitor.stop_count)
 
 
-def _bound(make, what: str):  # type: ignore[no-untyped-def]
+def _bound(make, what: str, path: Path, chosen: Plan):  # type: ignore[no-untyped-def]
     try:
         return make()
     except OSError as error:
-        raise StartError(f"cannot serve the {what} socket: {error} (safety.{what}_socket; "
-                         "systemd's RuntimeDirectory= makes its directory)") from None
+        raise StartError(f"cannot serve the {what} socket {socket_problem(path, error)} "
+                         f"({chosen.manifest.path}: safety.{what}_socket; the monitor's unit "
+                         "makes /run/warden-safety with RuntimeDirectory=, anywhere else "
+                         "create the directory first)") from None
 
 
 def _connected(chosen: Plan) -> DeviceWatch:

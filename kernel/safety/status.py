@@ -101,6 +101,19 @@ def ask(path: Path, timeout_s: float) -> dict[str, Any]:
     return answer
 
 
+def socket_problem(path: Path, error: OSError) -> str:
+    """Why the socket at ``path`` cannot be served or asked, naming the path and, when it is
+    the reason, its missing directory (an ``OSError``'s own text, "[Errno 2] No such file or
+    directory", names neither)."""
+    if isinstance(error, FileNotFoundError):
+        if not path.parent.is_dir():
+            return f"{path}: its directory {path.parent} does not exist"
+        return f"{path}: no such socket"
+    if error.strerror:
+        return f"{path}: {error.strerror[0].lower()}{error.strerror[1:]}"
+    return str(error) if str(path) in str(error) else f"{path}: {error}"
+
+
 def _unlink_stale(path: Path) -> None:
     """Raises:
         OSError: another monitor serves ``path``.

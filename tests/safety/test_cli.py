@@ -113,6 +113,28 @@ def test_status_without_a_monitor_is_exit_2(tmp_path: Path, capsys) -> None:  # 
     assert "no safety monitor answers" in capsys.readouterr().err
 
 
+def test_a_missing_socket_directory_is_named(tmp_path: Path, capsys) -> None:  # type: ignore
+    """Outside systemd's RuntimeDirectory= nobody makes the sockets' directory: the refusal
+    names the socket, its missing directory and the key, not a bare "[Errno 2]"."""
+    missing = tmp_path / "warden-safety"
+    path = sim_manifest(tmp_path, free_port(), heartbeat_socket=str(missing / "hb.sock"),
+                        status_socket=str(missing / "status.sock"))
+    err = _refusal(capsys, str(path))
+    assert (f"cannot serve the heartbeat socket {missing / 'hb.sock'}: its directory {missing} "
+            f"does not exist ({path}: safety.heartbeat_socket;") in err
+    assert "Errno" not in err
+    assert not missing.exists()
+
+
+def test_status_names_a_missing_socket_directory(tmp_path: Path, capsys) -> None:  # type: ignore
+    missing = tmp_path / "warden-safety"
+    assert main(["safety", "status", "--socket", str(missing / "status.sock")]) == 2
+    err = capsys.readouterr().err
+    assert (f"no safety monitor answers: {missing / 'status.sock'}: its directory {missing} "
+            "does not exist") in err
+    assert "Errno" not in err
+
+
 def test_a_dynamixel_monitor_watches_the_heartbeat_and_only_reports(
         tmp_path: Path, capsys) -> None:  # type: ignore
     path = tmp_path / "dynamixel.toml"
