@@ -54,13 +54,13 @@ and the run ended early (docs/operations.md, exit codes)."""
 
 
 def run_command(args: argparse.Namespace) -> int:
-    configure_logging(args)
+    structured = configure_logging(args)
     manifest = checked_manifest(args.manifest, args.cycles, args.clock, args.keys)
     journal_dir = journal_directory(manifest, args.journal_dir, args.no_journal)
-    summary = asyncio.run(_run(manifest, journal_dir)) if manifest.cell.clock is (
-        ClockKind.VIRTUAL) else run_wall(manifest, journal_dir)
-    output(summary, args.json_out)
-    if report_record_failure(summary):
+    summary = asyncio.run(_run(manifest, journal_dir, structured)) if manifest.cell.clock is (
+        ClockKind.VIRTUAL) else run_wall(manifest, journal_dir, structured=structured)
+    output(summary, args.json_out, structured)
+    if report_record_failure(summary, structured):
         return EXIT_RECORD_FAILED
     cycles = summary["cycles"]
     return 0 if cycles["verified"] == cycles["attempted"] == manifest.cell.cycles else 1
@@ -86,7 +86,7 @@ def journal_directory(manifest: Manifest, override: str | None,
     return path
 
 
-def report_record_failure(summary: dict[str, Any]) -> bool:
+def report_record_failure(summary: dict[str, Any], structured: bool = False) -> bool:
     """Say on stderr why a run whose record failed ended, what was lost and where the rest
     is (stderr may be the only record left: under systemd it lands in the system journal).
     True if the record failed."""
@@ -107,12 +107,18 @@ def report_record_failure(summary: dict[str, Any]) -> bool:
              + (f" (summary.json {journal['summary_file']})" if "summary_file" in journal
                 else "")]
     for line in lines:
-        print(f"warden: {line}", file=sys.stderr)
+        if structured:
+            import structlog
+
+            structlog.get_logger("warden.run").error("record failed", detail=line)
+        else:
+            print(f"warden: {line}", file=sys.stderr)
     return True
 
 
-def configure_logging(args: argparse.Namespace) -> None:
-    """Structured log lines go to stderr (stdout may carry the JSON summary)."""
+def configure_logging(args: argparse.Namespace) -> bool:
+    """Structured log lines go to stderr (stdout may carry the JSON summary). True when they
+    are JSON lines: progress and the run's closing words are then log lines too."""
     from kernel.shell.logging import configure_logging
 
     json_lines = args.log_format == "json" or (
@@ -121,6 +127,7 @@ def configure_logging(args: argparse.Namespace) -> None:
         configure_logging(args.log_level, json=json_lines)
     except ValueError as error:
         raise ManifestError(f"--log-level: {error}") from None
+    return json_lines
 
 
 def checked_manifest(path: str | Path, cycles: int | None = None,
@@ -179,34 +186,39 @@ def _with_overrides(manifest: Manifest, cycles: int | None, clock: str | None) -
     return dataclasses.replace(manifest, cell=cell)
 
 
-async def _run(manifest: Manifest, journal_dir: Path | None) -> dict[str, Any]:
+async def _run(manifest: Manifest, journal_dir: Path | None,
+               structured: bool = False) -> dict[str, Any]:
     from kernel.app.lockstep import run_lockstep
     from kernel.app.report import CycleProgress
 
-    with CycleProgress(manifest.cell.cycles) as progress:
+    with CycleProgress(manifest.cell.cycles, structured=structured) as progress:
         return await run_lockstep(manifest, journal_dir, progress)
 
 
-def run_wall(manifest: Manifest, journal_dir: Path | None, hook: Any = None) -> dict[str, Any]:
-    """The cell on the wall clock (``hook``: called after each tick, True ends the run)."""
+def run_wall(manifest: Manifest, journal_dir: Path | None, hook: Any = None, *,
+             structured: bool = False) -> dict[str, Any]:
+    """The cell on the wall clock (``hook``: called after each tick, True ends the run;
+    ``structured``: progress as JSON log lines)."""
     from kernel.app.live import run_live
     from kernel.app.report import CycleProgress
     from kernel.shell.loop import run
 
     async def main() -> dict[str, Any]:
-        with CycleProgress(manifest.cell.cycles) as progress:
+        with CycleProgress(manifest.cell.cycles, structured=structured) as progress:
             return await run_live(manifest, journal_dir, progress, hook)
 
     return run(main())
 
 
-def output(summary: dict[str, Any], json_out: str | None) -> None:
+def output(summary: dict[str, Any], json_out: str | None, structured: bool = False) -> None:
     from rich.console import Console
 
     from kernel.app.report import render_summary
 
-    # With the JSON on stdout, the table goes to stderr so stdout stays machine-readable.
-    render_summary(summary, Console(stderr=json_out == "-"))
+    # With the JSON on stdout, the table goes to stderr so stdout stays machine-readable;
+    # unless stderr carries JSON log lines only: then the JSON on stdout is the summary.
+    if not (json_out == "-" and structured):
+        render_summary(summary, Console(stderr=json_out == "-"))
     if json_out == "-":
         print(json.dumps(summary, indent=1, default=str))
     elif json_out:

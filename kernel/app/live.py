@@ -31,7 +31,7 @@ from kernel.shell.heartbeat import HeartbeatSender
 from kernel.shell.link_budget import AdmissionPacer
 from kernel.shell.link_types import ClientConfig
 from kernel.shell.operator import OperatorServer
-from kernel.shell.realtime import restore, try_realtime
+from kernel.shell.realtime import log_report, restore, try_realtime
 from kernel.shell.supervisor import RestartPolicy, Supervisor, describe, failure_fields
 from kernel.shell.systemd import ServiceNotifier
 from kernel.shell.timer import MonotonicClock, PeriodicTimer
@@ -60,7 +60,7 @@ async def run_live(manifest: Manifest, journal_dir: Path | None,
     server: _Launched | None = None
     worker = JobWorker(context.cell.gateway, context.sections, source_of(manifest))
     realtime = try_realtime()
-    log.info("scheduling", detail=realtime.summary())
+    log_report(log, realtime)
     service = ServiceNotifier.from_env()
     failures: list[str] = []
     loop = _Loop(context, progress, hook, service, realtime.summary())

@@ -1,28 +1,34 @@
 """What a cell run shows: progress per cycle and phase while it runs, a summary table after.
 
 On a terminal the progress is a live bar per cycle; anywhere else (CI logs, pipes) it is one
-plain line per phase change, so logs stay readable.
+plain line per phase change, so logs stay readable; with JSON log lines (``--log-format json``,
+the default when stderr is no terminal, e.g. under systemd) it is one structured log line per
+phase change, so every line on stderr parses.
 """
 
 from __future__ import annotations
 
 from typing import Any
 
+import structlog
 from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
 from kernel.summary import CycleResult
 
+log = structlog.get_logger("warden.run")
 STEPS = ("start", "pick approach", "pick descend", "grasp", "lift", "transport", "pre-contact",
          "insert", "verify", "release", "retreat lift", "retreat home", "done")
 
 
 class CycleProgress:
-    def __init__(self, cycles: int, console: Console | None = None) -> None:
+    def __init__(self, cycles: int, console: Console | None = None, *,
+                 structured: bool = False) -> None:
         self.console = console or Console(stderr=True)
         self.cycles = cycles
-        self._live = self.console.is_terminal
+        self.structured = structured
+        self._live = self.console.is_terminal and not structured
         self._progress = Progress(
             TextColumn("[bold]cycle {task.fields[cycle]}/{task.fields[of]}"),
             BarColumn(), TextColumn("{task.fields[step]:<14} {task.fields[mode]}"),
@@ -51,6 +57,8 @@ class CycleProgress:
         if self._progress is not None:
             done = STEPS.index(step) if step in STEPS else 0
             self._progress.update(self._task, completed=done, step=step, mode=shown)
+        elif self.structured:
+            log.info("progress", cycle=cycle, of=self.cycles, step=step, mode=shown)
         else:
             self.console.print(f"cycle {cycle}/{self.cycles}  {step:<14} {shown}")
 
@@ -62,6 +70,10 @@ class CycleProgress:
             self._progress.update(self._task, completed=len(STEPS) - 1, step="done",
                                   mode="verified" if result.verified else "failed")
             self._progress.console.print(text)
+        elif self.structured:
+            log.info("cycle done", cycle=result.index, of=self.cycles, verified=result.verified,
+                     detail=result.reason or None, depth_mm=round(result.depth_m * 1000, 1),
+                     duration_s=round(result.duration_s, 1))
         else:
             self.console.print(text)
 

@@ -27,7 +27,7 @@ from kernel.safety.heartbeat import HeartbeatReceiver
 from kernel.safety.monitor import Monitor
 from kernel.safety.settings import SafetySettings
 from kernel.safety.status import StatusServer, socket_problem
-from kernel.shell.realtime import restore, try_realtime
+from kernel.shell.realtime import log_report, restore, try_realtime
 from kernel.shell.systemd import ServiceNotifier
 
 log = structlog.get_logger("warden.safety")
@@ -105,6 +105,7 @@ def serve(path: str) -> None:
 def _watch(chosen: Plan, monitor: Monitor, status: StatusServer) -> None:
     watch, settings = monitor.watch, chosen.settings
     realtime = try_realtime(PRIORITY)
+    log_report(log, realtime)
     service = ServiceNotifier.from_env()
     stopping = threading.Event()
     try:
@@ -114,7 +115,7 @@ def _watch(chosen: Plan, monitor: Monitor, status: StatusServer) -> None:
             log.info("safety monitor watching", manifest=str(chosen.manifest.path),
                      device=watch.description, stop_path=watch.stop_path,
                      heartbeat=str(settings.heartbeat_path), status=str(settings.status_path),
-                     timeout_ms=settings.heartbeat_timeout_ms, scheduling=realtime.summary())
+                     timeout_ms=settings.heartbeat_timeout_ms, scheduling=realtime.in_effect())
             service.ready(f"watching {watch.description}")
             monitor.run(stopping, service.alive)
     finally:

@@ -1,10 +1,10 @@
 """Best-effort real-time settings for the loop thread: SCHED_FIFO, mlockall, CPU affinity.
 
 Each setting is optional and none of them raises: :func:`try_realtime` returns a
-:class:`RealtimeReport` saying what took effect and, for what did not, one human sentence the
-caller can log as a single line. The timing notes (bench/loop.py measures it) show SCHED_FIFO
-on the loop thread is what takes the 500 Hz tail from ~1 ms to a few hundred microseconds, so a
-deployment that silently runs without it must at least say so.
+:class:`RealtimeReport` saying what took effect and, for what did not, one human sentence each,
+which :func:`log_report` logs whole, as a warning. The timing notes (bench/loop.py measures it)
+show SCHED_FIFO on the loop thread is what takes the 500 Hz tail from ~1 ms to a few hundred
+microseconds, so a deployment that silently runs without it must at least say so.
 """
 
 from __future__ import annotations
@@ -15,6 +15,7 @@ import errno
 import os
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
+from typing import Any
 
 MCL_CURRENT = 1
 MCL_FUTURE = 2
@@ -40,13 +41,29 @@ class RealtimeReport:
     def ok(self) -> bool:
         return not self.problems
 
-    def summary(self) -> str:
-        """One log line: what is in effect, then each problem."""
+    def in_effect(self) -> str:
+        """What took effect: ``SCHED_FIFO priority 50, memory locked``."""
         sched = f"SCHED_FIFO priority {self.priority}" if self.fifo else "default scheduler"
         parts = [sched, "memory locked" if self.mlocked else "memory not locked"]
         if self.cpus is not None:
             parts.append(f"cpus {sorted(self.cpus)}")
-        return "; ".join((", ".join(parts), *self.problems))
+        return ", ".join(parts)
+
+    def summary(self) -> str:
+        """One line for a summary table: what is in effect, then each problem."""
+        return "; ".join((self.in_effect(), *self.problems))
+
+
+def log_report(logger: Any, report: RealtimeReport, event: str = "scheduling") -> None:
+    """Log ``report`` as one line: a warning when something did not take effect, each problem
+    a field of its own, whole.
+
+    A log line caps each string field (kernel/shell/logging.py); the joined summary of two
+    refusals runs past that cap and lost its last remedy (LimitMEMLOCK). Each problem alone is
+    one short sentence, well inside it.
+    """
+    emit = logger.info if report.ok else logger.warning
+    emit(event, in_effect=report.in_effect(), problems=list(report.problems))
 
 
 def try_realtime(priority: int = 50, *, fifo: bool = True, lock_memory: bool = True,
