@@ -130,11 +130,26 @@ def test_simulated_operator_is_refused_on_a_real_device(
 
 
 def test_json_on_stdout_is_machine_readable(capsys: pytest.CaptureFixture[str]) -> None:
-    code = main(["run", "--clock", "virtual", "--cycles", "1", "--no-journal", "--json", "-"])
+    code = main(["run", "--clock", "virtual", "--cycles", "1", "--no-journal", "--json", "-",
+                 "--log-format", "console"])
     captured = capsys.readouterr()
     summary = json.loads(captured.out)  # the summary table went to stderr
     assert code == 0 and summary["cycles"]["verified"] == 1
-    assert "verified" in captured.err
+    assert "warden run: 1/1 cycles verified" in captured.err
+    assert "cycle 1/1  start" in captured.err  # progress, one plain line per phase change
+
+
+def test_with_json_logs_every_stderr_line_is_json(capsys: pytest.CaptureFixture[str]) -> None:
+    """Progress and the cycle's result are log lines; the summary is stdout's JSON, no table."""
+    code = main(["run", "--clock", "virtual", "--cycles", "1", "--no-journal", "--json", "-",
+                 "--log-format", "json"])
+    captured = capsys.readouterr()
+    assert code == 0 and json.loads(captured.out)["cycles"]["verified"] == 1
+    lines = [json.loads(line) for line in captured.err.splitlines()]
+    progress = [line for line in lines if line["event"] == "progress"]
+    assert progress[0]["step"] == "start" and progress[-1]["step"] == "done"
+    [cycle] = [line for line in lines if line["event"] == "cycle done"]
+    assert (cycle["cycle"], cycle["of"], cycle["verified"]) == (1, 1, True)
 
 
 # -- bad input found by new users: every case exits 2 before anything starts ----------------------
