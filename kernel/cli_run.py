@@ -60,7 +60,7 @@ def run_command(args: argparse.Namespace) -> int:
     summary = asyncio.run(_run(manifest, journal_dir, structured)) if manifest.cell.clock is (
         ClockKind.VIRTUAL) else run_wall(manifest, journal_dir, structured=structured)
     output(summary, args.json_out, structured)
-    if report_record_failure(summary, structured):
+    if report_record_failure(summary):
         return EXIT_RECORD_FAILED
     cycles = summary["cycles"]
     return 0 if cycles["verified"] == cycles["attempted"] == manifest.cell.cycles else 1
@@ -86,7 +86,7 @@ def journal_directory(manifest: Manifest, override: str | None,
     return path
 
 
-def report_record_failure(summary: dict[str, Any], structured: bool = False) -> bool:
+def report_record_failure(summary: dict[str, Any]) -> bool:
     """Say on stderr why a run whose record failed ended, what was lost and where the rest
     is (stderr may be the only record left: under systemd it lands in the system journal).
     True if the record failed."""
@@ -107,18 +107,13 @@ def report_record_failure(summary: dict[str, Any], structured: bool = False) -> 
              + (f" (summary.json {journal['summary_file']})" if "summary_file" in journal
                 else "")]
     for line in lines:
-        if structured:
-            import structlog
-
-            structlog.get_logger("warden.run").error("record failed", detail=line)
-        else:
-            print(f"warden: {line}", file=sys.stderr)
+        print(f"warden: {line}", file=sys.stderr)
     return True
 
 
 def configure_logging(args: argparse.Namespace) -> bool:
     """Structured log lines go to stderr (stdout may carry the JSON summary). True when they
-    are JSON lines: progress and the run's closing words are then log lines too."""
+    are JSON lines: the run's progress is then log lines too."""
     from kernel.shell.logging import configure_logging
 
     json_lines = args.log_format == "json" or (
