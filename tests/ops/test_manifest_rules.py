@@ -108,3 +108,8 @@ def test_a_trial_without_a_state_watchdog_is_refused(tmp_path: Path) -> None:
     assert load_manifest(manifest).core.state_timeout_ns is None  # a run would accept it
     with pytest.raises(ManifestError, match=r"state_timeout_ms.*state watchdog"):
         load_trial(manifest, keys)
+
+
+def test_the_gripper_event_threshold_defaults_to_one_millimetre() -> None:
+    # what decides whether a trim would delete a gripper closing (tests/core/test_gates.py)
+    assert load(SIM).core.limits.gripper_event_threshold == 1e-3
