@@ -4,6 +4,7 @@ reports a refusing device to the core, and never leaves the last command live af
 from __future__ import annotations
 
 import asyncio
+import json
 from pathlib import Path
 from typing import Any
 
@@ -156,3 +157,25 @@ def test_a_dead_policy_link_task_is_a_lost_link_for_the_core(tmp_path: Path) -> 
         context.cell.world.close()
         context.recorder.close()
         context.files.close()
+
+
+def test_a_refused_command_is_journaled_with_the_refusal(tmp_path: Path) -> None:
+    """The journal keeps each command with the device's answer: a refusal as not accepted,
+    with its reason, on the very command it refused (issue 15, item 14)."""
+    context = _context(tmp_path)
+    controller = context.cell.controller
+
+    async def scenario() -> None:
+        await bring_up(context)
+        controller.start()
+        recording = _Recording(controller.driver)
+        controller.driver = recording  # type: ignore[assignment]
+        await controller.tick()
+        recording.refuse = True
+        await controller.tick()
+
+    _run(context, scenario)
+    lines = (context.files.directory / "journal.jsonl").read_text().splitlines()
+    answers = [json.loads(line)["applied"] for line in lines if '"kind":"command"' in line]
+    assert answers[0]["accepted"] is True
+    assert (answers[1]["accepted"], answers[1].get("reason")) == (False, "CONTROLLER_REJECT")

@@ -173,3 +173,25 @@ def test_commands_compare_to_the_bit() -> None:
     assert not same_bits(setpoint(0.0), setpoint(-0.0))
     assert same_bits(setpoint(math.nan), setpoint(math.nan))
     assert not same_bits(setpoint(0.5), setpoint(math.nextafter(0.5, 1.0)))
+
+
+def _without_last_commands(journal: Path, count: int) -> None:
+    """Drop the last ``count`` command records (a run ended before writing them)."""
+    lines = journal.read_bytes().splitlines(keepends=True)
+    commands = [at for at, raw in enumerate(lines) if b'"kind":"command"' in raw]
+    dropped = set(commands[-count:])
+    journal.write_bytes(b"".join(raw for at, raw in enumerate(lines) if at not in dropped))
+
+
+def test_one_missing_trailing_command_is_a_run_ended_mid_tick(run_copy: Path,
+                                                              capsys: _Capture) -> None:
+    _without_last_commands(run_copy / "journal.jsonl", 1)
+    assert main(["replay", str(run_copy / "journal.jsonl")]) == 0
+    assert "identical: " in capsys.readouterr().err
+
+
+def test_two_missing_trailing_commands_are_a_difference(run_copy: Path,
+                                                        capsys: _Capture) -> None:
+    _without_last_commands(run_copy / "journal.jsonl", 2)
+    assert main(["replay", str(run_copy / "journal.jsonl")]) == 1
+    assert "the journal records no command for it" in capsys.readouterr().err

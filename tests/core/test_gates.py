@@ -325,3 +325,19 @@ def test_divergence_is_skipped_for_nonfinite_or_misshapen_chunks() -> None:
 def test_the_context_is_a_frozen_snapshot() -> None:
     with pytest.raises(AttributeError):
         context().t = 5  # type: ignore[misc]
+
+
+@pytest.mark.parametrize(("closing", "forbidden"), [(0.004, True), (0.0015, True),
+                                                    (0.0005, False)])
+def test_a_small_gripper_closing_in_the_prefix_forbids_the_trim(closing: float,
+                                                                forbidden: bool) -> None:
+    """The default gripper-event threshold is 1 mm: a gripper closing by a few millimetres in
+    one row is an event a trim must not delete; sensor-sized jitter below it is not (issue 15,
+    item 14: a threshold ×10 let a trim delete a closing)."""
+    assert LIMITS.gripper_event_threshold == 1e-3
+    actions = [[0.0, 0.0, 0.05], [0.0, 0.0, 0.05 - closing]] + [[0.0, 0.0, 0.05 - closing]] * 8
+    timing = time_verdict(chunk(actions=actions), at(125, policy={"trim": True}), t_obs=0)
+    if forbidden:
+        assert timing.reasons == (R.TRIM_FORBIDDEN,) and timing.trim == 0
+    else:
+        assert timing.reasons == () and timing.trim == 3

@@ -35,7 +35,7 @@ from dynamixel_sdk import COMM_SUCCESS, PacketHandler, PortHandler
 from assurance.reasons import ReasonCode
 from drivers.base import Command, CommandKind, ControlConfig, DeviceFault, DriverState
 from drivers.dynamixel.driver import DynamixelDriver
-from drivers.dynamixel.settings import DynamixelSettings
+from drivers.dynamixel.settings import DynamixelSettings, device_watchdog
 from drivers.lifecycle import ManagedDriver
 from stubs.dynamixel_bus.launch import WIDE_TIMING, BusEmulator
 from stubs.fault_control import inject
@@ -221,3 +221,15 @@ async def stream_toward_far_target(port: str) -> None:
 
 if __name__ == "__main__":
     asyncio.run(stream_toward_far_target(sys.argv[1]))
+
+
+@pytest.mark.parametrize(("table", "on"), [({}, True), ({"watchdog_periods": 1}, True),
+                                           ({"watchdog_periods": 0}, False)])
+def test_the_watchdog_a_trial_is_told_of_is_the_one_configured(table: dict[str, Any],
+                                                              on: bool) -> None:
+    """``device_watchdog`` is what `warden trial` reports as the device's stop, and None (no
+    trial) when 0 switches the Bus Watchdog off (issue 15, item 14: reported on at 0)."""
+    said = device_watchdog({"port": "/dev/null", **table})
+    assert (said is not None) == on
+    if on:
+        assert f"for {table.get('watchdog_periods', 10)} control periods" in str(said)

@@ -1,0 +1,70 @@
+"""Two monitor rules pinned directly (issue 15, item 14: mutants of each survived the suite).
+
+- A reading that is not a number breaks its limit: a NaN or infinite velocity, position or
+  force is a breach, never a pass.
+- A new kind of breach stops the arm at once even while an earlier one persists (the arm at
+  rest, so the persisting one alone would not stop it again).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from kernel.safety.checks import Breach, Sample, breaches
+from kernel.safety.heartbeat import HeartbeatReceiver
+from tests.safety.test_monitor import LIMITS, SETTINGS, Clock, ScriptedWatch, _monitor
+
+NAN, INF = math.nan, math.inf
+
+
+@pytest.fixture
+def clock() -> Clock:
+    return Clock()
+
+
+@pytest.fixture
+def receiver(tmp_path: Path) -> Iterator[HeartbeatReceiver]:
+    made = HeartbeatReceiver(tmp_path / "hb.sock", os.getegid(), SETTINGS.heartbeat_timeout_ns,
+                             SETTINGS.closing_timeout_ns)
+    yield made
+    made.close()
+
+
+@pytest.mark.parametrize("qd", [NAN, INF, -INF])
+def test_a_velocity_that_is_not_a_number_is_a_velocity_breach(qd: float) -> None:
+    found = breaches(Sample(q=(0.0,), qd=(qd,), force_n=0.0), LIMITS)
+    assert [f.breach for f in found] == [Breach.VELOCITY]
+
+
+@pytest.mark.parametrize("q", [NAN, INF, -INF])
+def test_a_position_that_is_not_a_number_is_a_position_breach(q: float) -> None:
+    found = breaches(Sample(q=(q,), qd=(0.0,), force_n=0.0), LIMITS)
+    assert [f.breach for f in found] == [Breach.POSITION]
+
+
+def test_a_force_that_is_not_a_number_is_a_force_breach() -> None:
+    found = breaches(Sample(q=(0.0,), qd=(0.0,), force_n=NAN), LIMITS)
+    assert [f.breach for f in found] == [Breach.FORCE]
+
+
+def test_a_second_breach_while_the_first_persists_stops_the_arm_again(
+        receiver: HeartbeatReceiver, clock: Clock) -> None:
+    watch = ScriptedWatch()
+    monitor = _monitor(watch, receiver, clock)
+    watch.reading = Sample(q=(1.2,), qd=(0.0,), force_n=0.0)  # at rest past its limit
+    monitor.check()
+    assert watch.stops == 1
+    clock.advance(4)
+    monitor.check()
+    assert watch.stops == 1  # the same breach, the arm still: no second stop
+    watch.reading = Sample(q=(1.2,), qd=(0.0,), force_n=80.0)  # and now pressing too hard
+    clock.advance(4)
+    monitor.check()
+    assert watch.stops == 2
+    assert not monitor.stops[-1].repeated
+    assert any(f.startswith("force") for f in monitor.stops[-1].findings)
