@@ -81,10 +81,10 @@ class LineServer:
         listener = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
         try:
             listener.bind(str(self.path))
+            listener.listen(self.limits.backlog)  # at once: a client that sees the file connects
+            listener.setblocking(False)
             os.chown(self.path, 0 if os.geteuid() == 0 else -1, self.gid)
             os.chmod(self.path, 0o660)
-            listener.listen(self.limits.backlog)
-            listener.setblocking(False)
         except BaseException:
             listener.close()
             raise
