@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import errno
 import json
 import os
 import socket
@@ -32,6 +33,8 @@ import structlog
 
 log = structlog.get_logger("warden.operator")
 _CREDENTIALS = struct.Struct("3i")  # struct ucred: pid, uid, gid
+_OUT_OF_RESOURCES = frozenset({errno.EMFILE, errno.ENFILE, errno.ENOBUFS, errno.ENOMEM})
+_ACCEPT_BACKOFF_S = 0.1
 
 Answer = dict[str, Any]
 
@@ -98,14 +101,30 @@ class LineServer:
         try:
             if started is not None:
                 started()
-            loop = asyncio.get_running_loop()
             async with asyncio.TaskGroup() as connections:
                 while True:
-                    connection, _ = await loop.sock_accept(listener)
-                    connection.setblocking(False)
-                    self._admit(connections, connection)
+                    connection = await self._accept(listener)
+                    if connection is not None:
+                        self._admit(connections, connection)
         finally:
             self.close()
+
+    async def _accept(self, listener: socket.socket) -> socket.socket | None:
+        """The next connection, or None: it went away before it was accepted, or the process
+        is out of descriptors or memory for now (the server waits a moment, as asyncio's own
+        server does, instead of failing the run)."""
+        try:
+            connection, _ = await asyncio.get_running_loop().sock_accept(listener)
+        except ConnectionAbortedError:
+            return None
+        except OSError as error:
+            if error.errno not in _OUT_OF_RESOURCES:
+                raise
+            log.warning("operator socket cannot accept", error=errno.errorcode[error.errno])
+            await asyncio.sleep(_ACCEPT_BACKOFF_S)
+            return None
+        connection.setblocking(False)
+        return connection
 
     def close(self) -> None:
         """Stop listening and remove the socket file; idempotent."""
