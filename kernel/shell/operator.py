@@ -17,13 +17,10 @@ answer says so, not before.
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import grp
-import json
 import os
 import pwd
 import socket
-import struct
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -35,13 +32,21 @@ import msgspec
 import structlog
 
 from assurance.fallback import Owner
+from assurance.reasons import ReasonCode
 from kernel.core.events import OperatorAction, OperatorEvent
-from kernel.core.lines import Line, TickLine, encode
+from kernel.core.lines import Line, Machine, TickLine, TransitionLine, encode
 from kernel.shell.gateway import CoreGateway
+from kernel.shell.operator_socket import (
+    DEFAULT_LIMITS,
+    Answer,
+    Caller,
+    DuplicateKey,
+    LineServer,
+    SocketLimits,
+    reject_duplicate_keys,
+)
 
 log = structlog.get_logger("warden.operator")
-_CREDENTIALS = struct.Struct("3i")  # struct ucred: pid, uid, gid
-_MAX_REQUEST = 4096
 _TAKEOVER_WAIT_S = 2.0
 SOCKET_NAME = "operator.sock"
 DEFAULT_RUNTIME_DIRECTORY = "/run/warden"
@@ -67,11 +72,28 @@ ACTIONS: dict[OperatorCommand, OperatorAction] = {
 }
 
 
-@dataclass(frozen=True, slots=True)
-class Caller:
-    pid: int
-    uid: int
-    gid: int
+class Request(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """One line a client sends: ``{"command": ...}`` and nothing else."""
+
+    command: OperatorCommand
+
+
+_REQUEST = msgspec.json.Decoder(Request)
+
+
+def parse_request(line: bytes) -> Request | str:
+    """The request on ``line``, or why it is not one (a duplicate key, an unknown field, an
+    unknown command, not JSON)."""
+    try:
+        reject_duplicate_keys(line)
+        return _REQUEST.decode(line)
+    except DuplicateKey as error:
+        return f"not a request: {error}"
+    except msgspec.ValidationError as error:
+        return f"not a request: {error} (commands: {', '.join(OperatorCommand)})"
+    except (ValueError, msgspec.DecodeError):
+        return (f"not a request: one JSON object per line expected, {{\"command\": C}} with C "
+                f"one of {', '.join(OperatorCommand)}")
 
 
 @dataclass(slots=True)
@@ -85,68 +107,33 @@ class OperatorServer:
     """Serves the operator socket for one run; ``status`` reads what the run reports."""
 
     def __init__(self, gateway: CoreGateway, path: Path, group: str,
-                 status: Callable[[], dict[str, Any]]) -> None:
+                 status: Callable[[], dict[str, Any]],
+                 limits: SocketLimits = DEFAULT_LIMITS) -> None:
         self.gateway, self.path, self.group = gateway, path, group
         self.gid = grp.getgrnam(group).gr_gid
         self.status = status
         self.stats = OperatorStats()
+        self.socket = LineServer(path, self.gid, self._answer, limits)
         self._human_tick: asyncio.Event | None = None
         gateway.listeners.append(self._watch)
 
-    async def run(self, started: Any = None) -> None:
+    async def run(self, started: Callable[[], None] | None = None) -> None:
         """Serve until cancelled; the socket file is removed when the server stops."""
-        self._unlink_stale()
-        server = await asyncio.start_unix_server(self._serve, path=str(self.path))
-        try:
-            os.chown(self.path, 0 if os.geteuid() == 0 else -1, self.gid)
-            os.chmod(self.path, 0o660)
-            log.info("operator socket", path=str(self.path), group=self.group)
-            if started is not None:
-                started()
-            async with server:
-                await server.serve_forever()
-        finally:
-            server.close()
-            with contextlib.suppress(FileNotFoundError):
-                self.path.unlink()
+        _unlink_stale(self.path)
+        self.socket.open()
+        log.info("operator socket", path=str(self.path), group=self.group)
+        await self.socket.serve(started)
 
-    def _unlink_stale(self) -> None:
-        """A socket left by a run that died: nobody listens on it any more."""
-        if self.path.is_socket():
-            probe = socket.socket(socket.AF_UNIX)
-            try:
-                probe.connect(str(self.path))
-            except OSError:
-                self.path.unlink()
-            else:
-                raise OSError(f"{self.path}: another warden is serving this socket")
-            finally:
-                probe.close()
-
-    async def _serve(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-        received_ns = time.monotonic_ns()
-        try:
-            caller = _caller(writer)
-            line = await asyncio.wait_for(reader.readline(), timeout=2.0)
-            answer = await self._answer(caller, line[:_MAX_REQUEST], received_ns)
-            writer.write(json.dumps(answer).encode() + b"\n")
-            await writer.drain()
-        except (TimeoutError, ConnectionError, OSError):
-            pass  # a client that went away gets nothing more
-        finally:
-            writer.close()
-
-    async def _answer(self, caller: Caller, line: bytes, received_ns: int) -> dict[str, Any]:
-        try:
-            request = json.loads(line)
-            command = OperatorCommand(request["command"])
-        except (ValueError, KeyError, TypeError):
-            return {"ok": False, "error": f"not a request: expected one of "
-                                          f"{', '.join(OperatorCommand)}"}
-        if not self._allowed(caller):
+    async def _answer(self, caller: Caller, line: bytes, received_ns: int) -> Answer:
+        request = parse_request(line)
+        if isinstance(request, str):
+            return {"ok": False, "error": request}
+        command = request.command
+        if not member(caller, self.gid):
             self.stats.refused += 1
             log.warning("operator command refused", command=command, uid=caller.uid,
-                        gid=caller.gid, pid=caller.pid, reason=f"not in group {self.group}")
+                        gid=caller.gid, pid=caller.pid, reason=ReasonCode.NO_AUTHORITY,
+                        detail=f"not in group {self.group}")
             return {"ok": False, "error": f"uid {caller.uid} is not in group {self.group}"}
         log.info("operator command", command=command, uid=caller.uid, gid=caller.gid,
                  pid=caller.pid)
@@ -154,27 +141,37 @@ class OperatorServer:
             return {"ok": True, **self.status()}
         if command is OperatorCommand.CONFIRM:
             return {"ok": False, "error": "nothing to confirm: the run is already going"}
-        self.stats.granted += 1
+        if self.gateway.closed:
+            return {"ok": False, "error": "the run is over: nothing more is decided",
+                    **self.status()}
         return await self._command(command, caller, received_ns)
 
     async def _command(self, command: OperatorCommand, caller: Caller,
-                       received_ns: int) -> dict[str, Any]:
-        if command is OperatorCommand.TAKEOVER:
-            self._human_tick = asyncio.Event()
+                       received_ns: int) -> Answer:
+        """Feed the command to the core; the answer is ``ok`` only if the core granted it."""
         t = self.gateway.now_ns()
         step = self.gateway.feed(OperatorEvent(t=t, action=ACTIONS[command], uid=caller.uid))
-        answer: dict[str, Any] = {"ok": True, "command": str(command),
-                                  "lines": [_brief(line) for line in step.lines]}
-        if command is OperatorCommand.TAKEOVER:
-            answer.update(await self._takeover_latency(received_ns))
+        refusal = _refusal(step.lines)
+        answer: Answer = {"ok": refusal is None, "command": str(command),
+                          "lines": [_brief(line) for line in step.lines]}
+        if refusal is not None:
+            self.stats.refused += 1
+            log.warning("operator command refused by the core", command=command,
+                        uid=caller.uid, reason=refusal.trigger, detail=refusal.detail)
+            answer.update(error=f"refused: {refusal.detail}", reason=str(refusal.trigger))
+        else:
+            self.stats.granted += 1
+            if command is OperatorCommand.TAKEOVER:
+                answer.update(await self._takeover_latency(received_ns))
         answer.update(self.status())
         return answer
 
     async def _takeover_latency(self, received_ns: int) -> dict[str, Any]:
-        event = self._human_tick
+        # Armed after the core granted the takeover: the human's first tick comes later, from
+        # the control loop, never from the step that granted it.
+        event = self._human_tick = asyncio.Event()
         try:
-            if event is not None:
-                await asyncio.wait_for(event.wait(), timeout=_TAKEOVER_WAIT_S)
+            await asyncio.wait_for(event.wait(), timeout=_TAKEOVER_WAIT_S)
         except TimeoutError:
             return {"took_over": False}
         finally:
@@ -191,8 +188,30 @@ class OperatorServer:
         if any(isinstance(line, TickLine) and line.owner == Owner.HUMAN for line in lines):
             event.set()
 
-    def _allowed(self, caller: Caller) -> bool:
-        return member(caller, self.gid)
+
+def _refusal(lines: tuple[Line, ...]) -> TransitionLine | None:
+    """The core's refusal of an operator command: the fallback machine's transition line that
+    was not accepted (its ``detail`` says why), or None when the command was granted."""
+    return next((line for line in lines if isinstance(line, TransitionLine)
+                 and line.machine is Machine.FALLBACK and not line.accepted), None)
+
+
+def _unlink_stale(path: Path) -> None:
+    """A socket left by a run that died: nobody listens on it any more.
+
+    Raises:
+        OSError: another process serves it.
+    """
+    if path.is_socket():
+        probe = socket.socket(socket.AF_UNIX)
+        try:
+            probe.connect(str(path))
+        except OSError:
+            path.unlink()
+        else:
+            raise OSError(f"{path}: another warden is serving this socket")
+        finally:
+            probe.close()
 
 
 def member(caller: Caller, gid: int) -> bool:
@@ -206,7 +225,8 @@ def member(caller: Caller, gid: int) -> bool:
     return gid in os.getgrouplist(name, caller.gid)
 
 
-async def await_confirmation(path: Path, group: str, run: str, timeout_s: float) -> Caller:
+async def await_confirmation(path: Path, group: str, run: str, timeout_s: float,
+                             limits: SocketLimits = DEFAULT_LIMITS) -> Caller:
     """Serve the operator socket until a member of ``group`` sends ``confirm`` (a bounded
     trial starts only then); anything else is answered and refused.
 
@@ -216,57 +236,42 @@ async def await_confirmation(path: Path, group: str, run: str, timeout_s: float)
     gid = grp.getgrnam(group).gr_gid
     confirmed: asyncio.Future[Caller] = asyncio.get_running_loop().create_future()
 
-    async def serve(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-        try:
-            caller = _caller(writer)
-            line = await asyncio.wait_for(reader.readline(), timeout=2.0)
-            answer = _confirmation(caller, gid, group, line[:_MAX_REQUEST], run, confirmed)
-            writer.write(json.dumps(answer).encode() + b"\n")
-            await writer.drain()
-        except (TimeoutError, ConnectionError, OSError):
-            pass
-        finally:
-            writer.close()
+    async def answer(caller: Caller, line: bytes, received_ns: int) -> Answer:
+        return _confirmation(caller, gid, group, line, run, confirmed)
 
     if path.is_socket():
         path.unlink()
-    server = await asyncio.start_unix_server(serve, path=str(path))
+    server = LineServer(path, gid, answer, limits)
+    server.open()
     try:
-        os.chown(path, 0 if os.geteuid() == 0 else -1, gid)
-        os.chmod(path, 0o660)
-        async with server:
-            return await asyncio.wait_for(asyncio.shield(confirmed), timeout=timeout_s)
+        async with asyncio.TaskGroup() as tasks:
+            serving = tasks.create_task(server.serve())
+            await asyncio.wait([confirmed], timeout=timeout_s)
+            serving.cancel()
     finally:
-        server.close()
-        with contextlib.suppress(FileNotFoundError):
-            path.unlink()
+        server.close()  # also when the serving task was cancelled before it started
+    if not confirmed.done():
+        raise TimeoutError(f"no confirmation within {timeout_s:g} s")
+    return confirmed.result()
 
 
 def _confirmation(caller: Caller, gid: int, group: str, line: bytes, run: str,
-                  confirmed: asyncio.Future[Caller]) -> dict[str, Any]:
-    try:
-        command = OperatorCommand(json.loads(line)["command"])
-    except (ValueError, KeyError, TypeError):
-        return {"ok": False, "error": "not a request"}
+                  confirmed: asyncio.Future[Caller]) -> Answer:
+    request = parse_request(line)
+    if isinstance(request, str):
+        return {"ok": False, "error": request}
     if not member(caller, gid):
         log.warning("trial confirmation refused", uid=caller.uid, gid=caller.gid,
-                    pid=caller.pid, reason=f"not in group {group}")
+                    pid=caller.pid, reason=ReasonCode.NO_AUTHORITY, detail=f"not in group {group}")
         return {"ok": False, "error": f"uid {caller.uid} is not in group {group}"}
-    if command is OperatorCommand.STATUS:
+    if request.command is OperatorCommand.STATUS:
         return {"ok": True, "run": run, "mode": "awaiting confirmation"}
-    if command is not OperatorCommand.CONFIRM:
+    if request.command is not OperatorCommand.CONFIRM:
         return {"ok": False, "error": f"the trial {run} has not started: confirm it first"}
     log.info("trial confirmed", run=run, uid=caller.uid, gid=caller.gid, pid=caller.pid)
     if not confirmed.done():
         confirmed.set_result(caller)
     return {"ok": True, "confirmed": run, "uid": caller.uid}
-
-
-def _caller(writer: asyncio.StreamWriter) -> Caller:
-    sock = writer.get_extra_info("socket")
-    raw = sock.getsockopt(socket.SOL_SOCKET, socket.SO_PEERCRED, _CREDENTIALS.size)
-    pid, uid, gid = _CREDENTIALS.unpack(raw)
-    return Caller(pid, uid, gid)
 
 
 def _brief(line: Line) -> dict[str, Any]:

@@ -40,8 +40,9 @@ def _manifest(tmp: Path, socket: Path) -> Path:
 class _Run:
     def __init__(self, tmp: Path, socket: Path | None = None) -> None:
         self.socket = socket or tmp / "operator.sock"
+        self.manifest = _manifest(tmp, self.socket)
         self.process = subprocess.Popen(
-            [sys.executable, "-m", "kernel.cli", "run", str(_manifest(tmp, self.socket)),
+            [sys.executable, "-m", "kernel.cli", "run", str(self.manifest),
              "--journal-dir",
              str(tmp / "runs"), "--log-format", "json"], cwd=ROOT,
             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
@@ -74,10 +75,23 @@ def _journal(tmp: Path) -> list[dict[str, Any]]:
     return [json.loads(line) for line in journal.read_text().splitlines()[1:]]
 
 
-def test_a_human_takes_over_releases_recovers_stops_and_resets(tmp_path: Path) -> None:
+def _cli(command: str, manifest: Path, capsys: pytest.CaptureFixture[str]) -> tuple[int, str]:
+    """``warden operator COMMAND MANIFEST``: the socket from the manifest; exit code, stderr."""
+    from kernel.cli import main
+
+    code = main(["operator", command, str(manifest)])
+    return code, capsys.readouterr().err
+
+
+def test_a_human_takes_over_releases_recovers_stops_and_resets(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     run = _Run(tmp_path)
     try:
-        assert run.command("status")["ok"]
+        assert run.wait_for("RUNNING")["ok"]
+        # Refused by the core: exit 1 and why, nothing changed.
+        assert _cli("accept-recovery", run.manifest, capsys) == (
+            1, "warden: accept-recovery: refused: nothing to recover from in RUNNING\n")
+        assert run.command("status")["mode"] == "RUNNING"
         taken = run.command("takeover")
         assert taken["ok"] and taken["took_over"] and 0 < taken["latency_ms"] < 2000
         assert taken["mode"] == "HUMAN_RECOVERY"
@@ -88,12 +102,17 @@ def test_a_human_takes_over_releases_recovers_stops_and_resets(tmp_path: Path) -
         assert run.command("stop")["mode"] == "E_STOP"
         assert run.command("reset")["mode"] == "SAFE_HOLD"
         refused = run.command("release")  # nothing to release: refused by the core, with why
+        assert refused["ok"] is False and refused["error"] == (
+            "refused: no takeover to release in SAFE_HOLD")
         assert any(line.get("accepted") is False for line in refused["lines"])
+        assert _cli("reset", run.manifest, capsys)[0] == 1  # no e-stop to reset
+        assert _cli("accept-recovery", run.manifest, capsys) == (0, "")
     finally:
         run.stop()
     operator = [e for e in _journal(tmp_path) if e["kind"] == "operator"]
-    assert [e["action"] for e in operator] == ["takeover", "release", "accept_recovery",
-                                               "estop", "reset", "release"]
+    assert [e["action"] for e in operator] == ["accept_recovery", "takeover", "release",
+                                               "accept_recovery", "estop", "reset", "release",
+                                               "reset", "accept_recovery"]
     assert all(e["uid"] == 0 for e in operator)
 
 
@@ -146,3 +165,13 @@ def test_no_warden_at_the_socket_exits_2(tmp_path: Path,
 
     assert main(["operator", "status", "--socket", str(tmp_path / "none.sock")]) == 2
     assert "no warden answers here" in capsys.readouterr().err
+
+
+def test_an_unreadable_manifest_exits_2(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from kernel.cli import main
+
+    manifest = tmp_path / "cell.toml"
+    manifest.write_text((MANIFESTS / "sim-ur5e.toml").read_text() + "\n[operator]\nsocket = 3\n")
+    assert main(["operator", "status", str(manifest)]) == 2
+    err = capsys.readouterr().err
+    assert f"{manifest}: operator.socket" in err and "Traceback" not in err

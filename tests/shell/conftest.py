@@ -8,7 +8,7 @@ from collections.abc import AsyncIterator, Callable, Mapping
 import pytest
 import uvloop
 
-_BOTH_LOOPS = frozenset({"test_timer", "test_supervisor"})
+_BOTH_LOOPS = frozenset({"test_timer", "test_supervisor", "test_operator_socket"})
 
 
 def pytest_asyncio_loop_factories(
