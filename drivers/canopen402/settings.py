@@ -51,8 +51,8 @@ class CiA402Settings:
     gear_ratio: tuple[float, ...] = ()
     name: str = "canopen402"
     udp_port: int = 43113
-    """Only for ``udp_multicast``: pick one per bus, since Linux delivers a multicast datagram
-    to every socket bound to its port, whatever group that socket joined."""
+    """Only for ``udp_multicast``: the bus is the group (``channel``) and this port; buses on one
+    port with different groups are kept apart (``udp_bus.confine_to_host``)."""
     bitrate: int = 1_000_000
     eds_path: str = ""
     """The drives' EDS; empty: the generic CSP drive EDS shipped with this driver."""
