@@ -234,6 +234,17 @@ def _check_node_ids(node_ids: tuple[int, ...]) -> None:
         raise ValueError("node ids must be unique")
 
 
+def device_identity(table: Mapping[str, Any]) -> str | None:
+    """The CAN bus ``table`` addresses: interface and channel (and, on ``udp_multicast``, the
+    port); None for python-can's ``virtual`` bus, which no other process can reach."""
+    interface, channel = table.get("interface"), table.get("channel")
+    if not isinstance(interface, str) or not isinstance(channel, str) or interface == "virtual":
+        return None
+    port = configured(CiA402Settings, table, "udp_port")
+    where = f" port {port}" if interface == "udp_multicast" else ""
+    return f"CAN bus {interface} {channel}{where}"
+
+
 def device_watchdog(table: Mapping[str, Any]) -> str | None:
     """What stops the arm when warden's commands stop, as ``table`` configures it; None: off."""
     timeout_ms = configured(CiA402Settings, table, "watchdog_ms")
