@@ -50,6 +50,8 @@ class KinematicsConfig:
     """The arm's joints, base to tool; every other joint is locked at its neutral value."""
     source: str = "robot model"
     """Where the model came from (named in errors)."""
+    sha256: str = ""
+    """SHA-256 of the very bytes ``model`` was parsed from (empty: built in memory)."""
 
 
 @dataclass(frozen=True, slots=True)

@@ -94,7 +94,14 @@ class ControlConfig:
 
 @runtime_checkable
 class Driver(Protocol):
-    """The hooks a device driver implements. Device settings come to the constructor."""
+    """The hooks a device driver implements. Device settings come to the constructor.
+
+    A driver class may also declare, as static methods of a manifest ``[driver]`` table:
+    ``device_watchdog(table) -> str | None`` (what stops the arm when warden's commands stop)
+    and ``device_identity(table) -> str | None`` (the device the table addresses, one string
+    shared by every table that names the same device: warden takes a lock on it before touching
+    the device, so two wardens never drive one device; None: nothing another process can reach).
+    """
 
     name: str
 

@@ -19,6 +19,7 @@ import msgspec
 from drivers.readiness import Verdict
 from kernel.app.check import SECONDS_RANGE, Report, load_checked, run_check
 from kernel.cli_run import configure_logging, preflight
+from kernel.shell.device_lock import holding
 from kernel.signing import DEFAULT_KEYS_DIR
 
 TABLE_WIDTH = 160
@@ -50,7 +51,9 @@ def check_command(args: argparse.Namespace) -> int:
     configure_logging(args)
     manifest, signature = load_checked(Path(args.manifest), Path(args.keys))
     preflight(manifest)
-    report = run_check(manifest, signature, args.seconds)
+    # check enables a CANopen bus's drives: it excludes a running warden like another run.
+    with holding(manifest, "warden check"):
+        report = run_check(manifest, signature, args.seconds)
     _render(report, to_stderr=args.json_out == "-")
     if args.json_out:
         _write_json(report, args.json_out)

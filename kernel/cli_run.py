@@ -57,8 +57,12 @@ def run_command(args: argparse.Namespace) -> int:
     structured = configure_logging(args)
     manifest = checked_manifest(args.manifest, args.cycles, args.clock, args.keys)
     journal_dir = journal_directory(manifest, args.journal_dir, args.no_journal)
-    summary = asyncio.run(_run(manifest, journal_dir, structured)) if manifest.cell.clock is (
-        ClockKind.VIRTUAL) else run_wall(manifest, journal_dir, structured=structured)
+    from kernel.shell.device_lock import holding
+
+    # One warden per device: before any connection, emulator or real-time priority.
+    with holding(manifest, "warden run"):
+        summary = asyncio.run(_run(manifest, journal_dir, structured)) if manifest.cell.clock is (
+            ClockKind.VIRTUAL) else run_wall(manifest, journal_dir, structured=structured)
     output(summary, args.json_out, structured)
     if report_record_failure(summary):
         return EXIT_RECORD_FAILED

@@ -29,6 +29,7 @@ from kernel.cli_run import (
     run_wall,
 )
 from kernel.manifest import Manifest, ManifestError
+from kernel.shell.device_lock import holding
 from kernel.shell.operator import await_confirmation, socket_path
 from kernel.signing import DEFAULT_KEYS_DIR
 
@@ -61,6 +62,13 @@ def trial_command(args: argparse.Namespace) -> int:
     manifest = load_trial(Path(args.manifest), Path(args.keys))
     preflight(manifest)
     journal = journal_directory(manifest, args.journal_dir)
+    # One warden per device, taken before the card asks anyone to confirm a trial that could
+    # not start anyway.
+    with holding(manifest, "warden trial"):
+        return _trial(manifest, journal, args)
+
+
+def _trial(manifest: Manifest, journal: Path | None, args: argparse.Namespace) -> int:
     safety = safety_watching(manifest)
     socket = socket_path(manifest.operator.socket)
     print(trial_card(manifest, socket, safety, journal), file=sys.stderr)

@@ -8,13 +8,16 @@ joints, base to tool; default: the model's first ``dof`` joints). Every other jo
 (a gripper's fingers) is locked.
 
 A run's journal records the model file's absolute path and its SHA-256, so a replay reads the
-very same model or refuses to run.
+very same model or refuses to run. The file is read once: the bytes hashed are the bytes parsed
+(a file or symlink swapped during start-up can never pair one model with another's digest), so a
+model must be one self-contained file (an MJCF ``<include>`` is refused by the parser).
 """
 
 from __future__ import annotations
 
 import hashlib
-from dataclasses import dataclass
+import os
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import pinocchio as pin
@@ -43,41 +46,70 @@ class ModelError(ValueError):
     """The model file cannot be read or does not describe the robot; the message says why."""
 
 
-def digest(path: Path) -> str:
-    """SHA-256 of the model file, hex (the journal records it)."""
+def read_model(path: Path) -> tuple[bytes, str]:
+    """The model file's bytes, read once, and their SHA-256 (hex; the journal records it).
+
+    Raises:
+        ModelError: the file is missing, not a regular file, or unreadable.
+    """
+    if not path.is_file():
+        raise ModelError(f"{path}: no such model file")
     try:
-        return hashlib.sha256(path.read_bytes()).hexdigest()
+        content = path.read_bytes()
     except OSError as error:
         raise ModelError(f"cannot read {path}: {error.strerror or error}") from None
+    return content, hashlib.sha256(content).hexdigest()
+
+
+def digest(path: Path) -> str:
+    """SHA-256 of the model file, hex (for messages only: a loaded model carries the digest of
+    the bytes it was parsed from, ``KinematicsConfig.sha256``)."""
+    return read_model(path)[1]
 
 
 def load_kinematics(spec: ModelSpec, dof: int) -> ArmKinematics:
-    """The arm's kinematics from ``spec``.
+    """The arm's kinematics from ``spec``, parsed from the one read of the file whose digest
+    the result carries (``config.sha256``).
 
     Raises:
         ModelError: the file is missing or unreadable, is not MJCF or URDF, or lacks the
             joints or the tool frame.
     """
-    model = _read(spec.path)
+    content, sha256 = read_model(spec.path)
+    model = _parse(spec.path, content)
     names = [model.names[j] for j in range(1, model.njoints)]
     joints = spec.joints if spec.joints is not None else tuple(names[:dof])
     if len(joints) != dof:
         raise ModelError(f"{spec.path}: {len(joints)} arm joints for a robot of {dof}")
+    config = KinematicsConfig(model, spec.tcp_frame, joints, str(spec.path))
     try:
-        return ArmKinematics(KinematicsConfig(model, spec.tcp_frame, joints, str(spec.path)))
+        return ArmKinematics(replace(config, sha256=sha256))
     except ValueError as error:
         raise ModelError(str(error)) from None
 
 
-def _read(path: Path) -> pin.Model:
-    if not path.is_file():
-        raise ModelError(f"{path}: no such model file")
+def _parse(path: Path, content: bytes) -> pin.Model:
+    """Pinocchio's model from ``content`` (``path`` names it in errors and picks the format)."""
     suffix = path.suffix.lower()
     try:
         if suffix == ".xml":
-            return pin.buildModelFromMJCF(str(path))
+            return _parse_mjcf(content)
         if suffix == ".urdf":
-            return pin.buildModelFromUrdf(str(path))
-    except (RuntimeError, ValueError) as error:
+            return pin.buildModelFromXML(content.decode("utf-8"))
+    except (RuntimeError, ValueError) as error:  # UnicodeDecodeError is a ValueError
         raise ModelError(f"{path}: not a readable model: {error}") from None
     raise ModelError(f"{path}: a robot model must be MJCF (.xml) or URDF (.urdf)")
+
+
+def _parse_mjcf(content: bytes) -> pin.Model:
+    # Pinocchio's Python binding parses MJCF only from a path: hand it an anonymous in-memory
+    # file holding the bytes already hashed, never the model's own path (which could name
+    # another file by now).
+    fd = os.memfd_create("warden-robot-model", os.MFD_CLOEXEC)
+    try:
+        written = 0
+        while written < len(content):
+            written += os.write(fd, content[written:])
+        return pin.buildModelFromMJCF(f"/proc/self/fd/{fd}")
+    finally:
+        os.close(fd)

@@ -65,6 +65,8 @@ FIRST_CYCLE_TIMEOUT_S = 1.0
 class CiA402Driver:
     device_watchdog = staticmethod(settings_module.device_watchdog)
     """What stops the arm when warden's commands stop, per manifest table (None: off)."""
+    device_identity = staticmethod(settings_module.device_identity)
+    """The device a manifest table addresses (one warden per device: kernel/shell/device_lock)."""
 
     def __init__(self, settings: CiA402Settings) -> None:
         self.settings = settings

@@ -51,8 +51,8 @@ class CiA402Settings:
     gear_ratio: tuple[float, ...] = ()
     name: str = "canopen402"
     udp_port: int = 43113
-    """Only for ``udp_multicast``: pick one per bus, since Linux delivers a multicast datagram
-    to every socket bound to its port, whatever group that socket joined."""
+    """Only for ``udp_multicast``: the bus is the group (``channel``) and this port; buses on one
+    port with different groups are kept apart (``udp_bus.confine_to_host``)."""
     bitrate: int = 1_000_000
     eds_path: str = ""
     """The drives' EDS; empty: the generic CSP drive EDS shipped with this driver."""
@@ -232,6 +232,17 @@ def _check_node_ids(node_ids: tuple[int, ...]) -> None:
         raise ValueError("node ids must be within 1..127")
     if len(set(node_ids)) != len(node_ids):
         raise ValueError("node ids must be unique")
+
+
+def device_identity(table: Mapping[str, Any]) -> str | None:
+    """The CAN bus ``table`` addresses: interface and channel (and, on ``udp_multicast``, the
+    port); None for python-can's ``virtual`` bus, which no other process can reach."""
+    interface, channel = table.get("interface"), table.get("channel")
+    if not isinstance(interface, str) or not isinstance(channel, str) or interface == "virtual":
+        return None
+    port = configured(CiA402Settings, table, "udp_port")
+    where = f" port {port}" if interface == "udp_multicast" else ""
+    return f"CAN bus {interface} {channel}{where}"
 
 
 def device_watchdog(table: Mapping[str, Any]) -> str | None:

@@ -18,6 +18,10 @@ from drivers.canopen402._sdk import CanBus
 UDP_RECEIVE_BUFFER = 4 * 1024 * 1024
 """Requested SO_RCVBUF; Linux caps it at net.core.rmem_max."""
 LOOPBACK = "127.0.0.1"
+IP_MULTICAST_ALL = getattr(socket, "IP_MULTICAST_ALL", 49)
+"""Linux's option (linux/in.h; Python does not name it): 1, the default, delivers a multicast
+datagram to every socket bound to its port whatever group that socket joined; 0 only the
+groups the socket itself joined."""
 
 
 def _dup(bus: CanBus) -> socket.socket | None:
@@ -74,7 +78,10 @@ def confine_to_host(bus: CanBus, group: str) -> None:
       multicast, and so are this host's own sent through one;
     - the group is left on the default interface and joined on loopback;
     - frames are sent through loopback (``IP_MULTICAST_IF``) with TTL 0 (never onto a wire;
-      the local loop copy, ``IP_MULTICAST_LOOP``, is their one delivery).
+      the local loop copy, ``IP_MULTICAST_LOOP``, is their one delivery);
+    - ``IP_MULTICAST_ALL`` off: only the bus's own group is received, so buses on one port are
+      still separate buses (by default Linux hands a socket every group joined on its port, and
+      a check of an empty channel enabled the drives of another emulator on the same port).
 
     Between python-can's ``bind`` and this call (microseconds, before any frame is sent) the
     socket is still open to the LAN.
@@ -98,4 +105,5 @@ def confine_to_host(bus: CanBus, group: str) -> None:
         sock.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_IF, socket.inet_aton(LOOPBACK))
         sock.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_TTL, 0)
         sock.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_LOOP, 1)
+        sock.setsockopt(socket.IPPROTO_IP, IP_MULTICAST_ALL, 0)
         sock.setsockopt(socket.SOL_SOCKET, socket.SO_BINDTODEVICE, b"lo")

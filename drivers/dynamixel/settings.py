@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -170,6 +171,15 @@ class DynamixelSettings:
         if self.gripper_open_ticks == self.gripper_closed_ticks:
             raise ValueError(f"gripper_closed_ticks: equals gripper_open_ticks "
                              f"({self.gripper_open_ticks}); open and closed need distinct ticks")
+
+
+def device_identity(table: Mapping[str, Any]) -> str | None:
+    """The serial bus ``table`` addresses: its port with symlinks resolved, so
+    ``/dev/serial/by-id/...`` and the ``/dev/ttyUSB0`` it points at are one bus."""
+    port = table.get("port")
+    if not isinstance(port, str) or not port:
+        return None
+    return f"Dynamixel bus {os.path.realpath(port)}"
 
 
 def device_watchdog(table: Mapping[str, Any]) -> str | None:

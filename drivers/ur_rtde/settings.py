@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import ipaddress
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -150,6 +151,20 @@ def _gripper_problems(s: URSettings) -> list[str]:
         problems.append(f"gripper_max_opening_m = {s.gripper_max_opening_m} is outside "
                         "(0, 0.5] m")
     return problems
+
+
+def device_identity(table: Mapping[str, Any]) -> str | None:
+    """The controller ``table`` addresses, the same string for every table that names it (an
+    IP address in its canonical form; a host name lower-cased, not resolved)."""
+    host = table.get("host")
+    if not isinstance(host, str) or not host.strip():
+        return None
+    host = host.strip()
+    try:
+        host = str(ipaddress.ip_address(host))
+    except ValueError:
+        host = host.lower().rstrip(".")
+    return f"UR controller {host}"
 
 
 def device_watchdog(table: Mapping[str, Any]) -> str | None:

@@ -24,7 +24,6 @@ from kernel.app.task import assembly_runner
 from kernel.core.config import CoreConfig
 from kernel.core.runtime import Core
 from kernel.manifest import Manifest, ManifestError
-from kernel.robot_model import digest
 from kernel.scenario.fields import Where
 from kernel.scenario.kinematics import model_spec
 from kernel.shell.gateway import CoreGateway
@@ -81,11 +80,14 @@ def effective(manifest: Manifest, world: World) -> tuple[CoreConfig, dict[str, A
     sections = {**manifest.sections, "motion": {**manifest.sections.get("motion", {}),
                                                 "impedance": impedance}}
     spec = model_spec(manifest.sections["robot"], Where(str(manifest.path), "robot"))
-    if spec is not None:
+    kinematics = manifest.core.kinematics
+    if spec is not None and kinematics is not None:
         robot = {key: value for key, value in manifest.sections["robot"].items()
                  if key != "kinematics"}
+        # The digest of the bytes the run's model was parsed from, never a second read of a
+        # file that may have changed since.
         sections["robot"] = {**robot, "model": str(spec.path), "tcp_frame": spec.tcp_frame,
-                             "model_sha256": digest(spec.path)}
+                             "model_sha256": kinematics.config.sha256}
         if spec.joints is not None:
             sections["robot"]["joints"] = list(spec.joints)
     return config, sections

@@ -20,6 +20,7 @@ from kernel.core.config import CoreConfig
 from kernel.journal import header
 from kernel.manifest import Manifest, ManifestError
 from kernel.provenance import provenance
+from kernel.shell.device_lock import note_run_directory
 from kernel.shell.heartbeat import HeartbeatStats
 from kernel.shell.record_file import RecordFile, open_run_files
 from kernel.shell.recorder import Recorder
@@ -94,6 +95,7 @@ def open_run(manifest: Manifest, clock: Clock, journal_dir: Path | None,
             be built.
     """
     files = RunFiles.open(journal_dir, manifest.name)
+    note_run_directory(files.directory)  # in the device's lock, for a second warden to name
     try:
         world = world_for(manifest)
     except BaseException:

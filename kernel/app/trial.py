@@ -83,9 +83,11 @@ def _signed_model(manifest: Manifest) -> None:
     except ScenarioError as error:
         raise ManifestError(str(error)) from None
     if spec is not None and robot.get("model_sha256") is None:
+        kinematics = manifest.core.kinematics  # the digest of the bytes this run parsed
+        sha256 = kinematics.config.sha256 if kinematics is not None else digest(spec.path)
         raise ManifestError(f"{manifest.path}: robot.model_sha256: missing: a trial's signature "
                             f"must cover the robot model {spec.path.name} too; add "
-                            f'model_sha256 = "{digest(spec.path)}" to [robot] and sign again')
+                            f'model_sha256 = "{sha256}" to [robot] and sign again')
 
 
 def _device_watchdog(manifest: Manifest) -> str:

@@ -27,6 +27,7 @@ from kernel.safety.heartbeat import HeartbeatReceiver
 from kernel.safety.monitor import Monitor
 from kernel.safety.settings import SafetySettings
 from kernel.safety.status import StatusServer, socket_problem
+from kernel.shell.device_lock import DeviceBusy, Holder, holding
 from kernel.shell.realtime import log_report, restore, try_realtime
 from kernel.shell.systemd import ServiceNotifier
 
@@ -85,6 +86,12 @@ def serve(path: str) -> None:
     chosen = plan(path)
     settings = chosen.settings
     with contextlib.ExitStack() as stack:
+        # Warden's own lock never blocks the monitor (a second client by design); a second
+        # monitor on the same device is refused before it connects or raises its priority.
+        try:
+            stack.enter_context(holding(chosen.manifest, "warden safety", Holder.MONITOR))
+        except DeviceBusy as error:
+            raise StartError(f"cannot watch the device: {error}") from None
         heartbeat = _bound(lambda: HeartbeatReceiver(
             settings.heartbeat_path, chosen.gid, settings.heartbeat_timeout_ns,
             settings.closing_timeout_ns), "heartbeat", settings.heartbeat_path, chosen)

@@ -21,7 +21,7 @@ from assurance.cartesian import BASE_DELTA, CARTESIAN_UNITS, CartesianMapper, ac
 from assurance.kinematics import ArmKinematics, WorkspaceBox
 from assurance.limits import JointLimits
 from kernel.core.config import ClientSide
-from kernel.robot_model import BUILTIN, ModelError, ModelSpec, digest, load_kinematics
+from kernel.robot_model import BUILTIN, ModelError, ModelSpec, load_kinematics
 from kernel.scenario.bounds import WORKSPACE_MAX_M
 from kernel.scenario.fields import Where, mapping, text, vector
 
@@ -34,8 +34,9 @@ def robot_kinematics(
     if spec is None:
         return None
     try:
-        kinematics = load_kinematics(spec, int(limits.arm_mask.sum()))  # a regular file, read
-        changed = robot.get("model_sha256") is not None and digest(spec.path) != text(
+        # One read: the digest compared is that of the very bytes parsed.
+        kinematics = load_kinematics(spec, int(limits.arm_mask.sum()))
+        changed = robot.get("model_sha256") is not None and kinematics.config.sha256 != text(
             robot, "model_sha256", where)
     except ModelError as error:
         raise where.at("model" if "model" in robot else "kinematics").error(str(error)) from None

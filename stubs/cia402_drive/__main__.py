@@ -21,6 +21,7 @@ import sys
 import threading
 from typing import Any
 
+from stubs.cia402_drive.bus_claim import BusInUse
 from stubs.cia402_drive.emulator import (
     GRIPPER_COUNTS_PER_M,
     MAX_PROFILE_VELOCITY_RAD_S,
@@ -78,7 +79,11 @@ def main(argv: list[str] | None = None) -> int:
         gripper_node=args.gripper_node, gripper_counts_per_m=args.gripper_counts_per_m,
         max_profile_velocity=args.max_profile_velocity,
     )
-    emulator = DriveEmulator(config, make_plant(args.plant)).start()
+    try:
+        emulator = DriveEmulator(config, make_plant(args.plant)).start()
+    except BusInUse as error:
+        print(f"cia402_drive: {error}", file=sys.stderr)
+        return 2
     gc.freeze()  # object dictionaries and the plant live forever: keep full GC passes short
     handlers = {name: _handler(emulator, name) for name in emulator.faults}
     handlers.update(world_handlers(emulator.plant, emulator.lock))

@@ -32,6 +32,7 @@ from typing import Any
 import can
 import canopen
 
+from stubs.cia402_drive.bus_claim import BusClaim
 from stubs.cia402_drive.dictionary import object_dictionary
 from stubs.cia402_drive.drive import EmulatedDrive
 from stubs.cia402_drive.encoders import Encoder, LinearEncoder
@@ -119,6 +120,7 @@ class DriveEmulator:
         self._joints: tuple[EmulatedDrive, ...] = ()
         self.gripper: GripperLink | None = None
         self._network: canopen.Network | None = None
+        self._claim: BusClaim | None = None
         self._clock = _SyncClock()
         self._stopping = threading.Event()
         self._fd = -1
@@ -135,8 +137,17 @@ class DriveEmulator:
     # -- lifetime ------------------------------------------------------------------------------
 
     def start(self) -> DriveEmulator:
-        bus = can.Bus(interface=self.config.interface, channel=self.config.channel,
-                      **self._bus_options())
+        """Raises:
+            BusInUse: another emulator runs drives on this ``udp_multicast`` bus.
+        """
+        if self.config.interface == "udp_multicast":
+            self._claim = BusClaim(self.config.channel, self.config.udp_port)
+        try:
+            bus = can.Bus(interface=self.config.interface, channel=self.config.channel,
+                          **self._bus_options())
+        except BaseException:
+            self._release_claim()
+            raise
         try:
             widen_receive_buffer(bus)
             if self.config.interface == "udp_multicast":
@@ -152,6 +163,7 @@ class DriveEmulator:
             self._fd = fileno(bus)
         except BaseException:
             bus.shutdown()
+            self._release_claim()
             raise
         for drive in self.drives.values():
             drive.node.nmt.state = "RESET"  # sends the boot-up message
@@ -190,6 +202,12 @@ class DriveEmulator:
         for drive in self.drives.values():
             drive.node.nmt.stop_heartbeat()
         network.disconnect()
+        self._release_claim()
+
+    def _release_claim(self) -> None:
+        claim, self._claim = self._claim, None
+        if claim is not None:
+            claim.release()
 
     def __enter__(self) -> DriveEmulator:
         return self.start()

@@ -19,6 +19,9 @@ import can
 UDP_RECEIVE_BUFFER = 4 * 1024 * 1024
 """Requested SO_RCVBUF; Linux caps it at net.core.rmem_max."""
 LOOPBACK = "127.0.0.1"
+IP_MULTICAST_ALL = getattr(socket, "IP_MULTICAST_ALL", 49)
+"""Linux's option (linux/in.h), unnamed in Python: 0 receives only the groups this socket
+joined, not every group joined by anyone on its port (the default, 1)."""
 
 
 def fileno(bus: can.BusABC) -> int:
@@ -61,7 +64,9 @@ def confine_to_host(bus: can.BusABC, group: str) -> None:
     ``SO_BINDTODEVICE lo`` drops every datagram that arrives on a network interface (another
     host's, to the group or unicast to this host's address and the port); the group is joined
     on loopback instead of the default interface; frames go out through loopback with TTL 0,
-    so they never reach a wire and the local loop copy is their one delivery.
+    so they never reach a wire and the local loop copy is their one delivery; with
+    ``IP_MULTICAST_ALL`` off only this bus's group is received, so two buses that share a port
+    (different groups) stay two buses.
 
     Raises:
         ValueError: ``group`` is not an IPv4 multicast address.
@@ -82,4 +87,5 @@ def confine_to_host(bus: can.BusABC, group: str) -> None:
         sock.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_IF, socket.inet_aton(LOOPBACK))
         sock.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_TTL, 0)
         sock.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_LOOP, 1)
+        sock.setsockopt(socket.IPPROTO_IP, IP_MULTICAST_ALL, 0)
         sock.setsockopt(socket.SOL_SOCKET, socket.SO_BINDTODEVICE, b"lo")
