@@ -3,7 +3,7 @@
     warden replay SCENARIO|JOURNAL [--out FILE] [--pretty] [--check]
     warden run [MANIFEST] [--cycles N] [--clock wall|virtual] [--json FILE]
     warden check MANIFEST [--seconds S] [--keys DIR] [--json FILE]
-    warden serve-policy [server options]
+    warden serve-policy [MANIFEST] [--host HOST] [--port N] [--expose]
     warden manifest keygen|sign|verify ...
 
 Exit codes: 0 the command ran (a refused chunk is a result, not an error); 1 ``--check`` found

@@ -41,10 +41,22 @@ def add_commands(commands: Any) -> None:
     run.add_argument("--log-level", default="INFO", help="DEBUG, INFO, WARNING, ERROR")
     run.set_defaults(handler=run_command)
     serve = commands.add_parser(
-        "serve-policy", help="run the reference policy server (scripted insertion policy)",
-        description="Arguments are those of `python -m stubs.policy_server --help`.",
-        add_help=False)
-    serve.add_argument("server_args", nargs=argparse.REMAINDER)
+        "serve-policy", help="serve the reference policy a manifest's cell expects",
+        description="Serve, in the foreground until SIGINT or SIGTERM, exactly the reference "
+                    "policy server `warden run` launches for MANIFEST (its offer, goal, latency "
+                    "model, noise and seed), on --host and --port. A copy of the manifest with "
+                    "`[policy] launch = false` and that host and port runs against it "
+                    "(docs/operations.md, \"Running the policy server yourself\"). Prints "
+                    "`READY {\"port\": N}` on stdout once it listens.")
+    serve.add_argument("manifest", nargs="?", default=str(DEFAULT_MANIFEST),
+                       help="the cell's manifest (TOML); default: the simulated UR5e cell")
+    serve.add_argument("--host", help="address to listen on (default: the manifest's "
+                                      "policy.host); not loopback only with --expose")
+    serve.add_argument("--port", type=int, help="port to listen on, 0 … 65535 (default: the "
+                                                "manifest's policy.port; 0 picks a free one)")
+    serve.add_argument("--expose", action="store_true",
+                       help="listen on a --host that is not loopback (the link has no "
+                            "authentication)")
     serve.set_defaults(handler=serve_command)
 
 
@@ -218,9 +230,23 @@ def output(summary: dict[str, Any], json_out: str | None) -> None:
 
 
 def serve_command(args: argparse.Namespace) -> int:
+    """``warden serve-policy``: the reference server a manifest's cell expects, in the
+    foreground (exit 0 on SIGINT or SIGTERM, 2 for invalid input)."""
     from kernel.app import standins
+    from kernel.app.compose import cell_context
+    from kernel.manifest import is_loopback
 
-    return int(standins.load(standins.POLICIES, "serve")(args.server_args))
+    manifest = checked_manifest(args.manifest)
+    host = args.host if args.host is not None else manifest.policy.host
+    port = args.port if args.port is not None else manifest.policy.port
+    if not 0 <= port <= 65535:
+        raise ManifestError(f"--port: must be 0 to 65535, got {port}")
+    if not (args.expose or is_loopback(host)):
+        raise ManifestError(f"--host: {host!r} is not a loopback address: other hosts could "
+                            "reach the server (the link has no authentication); add --expose "
+                            "to mean it")
+    serve = standins.load(standins.POLICIES, "serve")
+    return int(serve(cell_context(manifest), host, port))
 
 
 __all__ = ["add_commands"]
