@@ -99,28 +99,46 @@ def journal_directory(manifest: Manifest, override: str | None,
 
 
 def report_record_failure(summary: dict[str, Any]) -> bool:
-    """Say on stderr why a run whose record failed ended, what was lost and where the rest
-    is (stderr may be the only record left: under systemd it lands in the system journal).
-    True if the record failed."""
+    """Say on stderr why a run whose record failed ended, what each file holds, what was lost
+    and where the rest is (stderr may be the only record left: under systemd it lands in the
+    system journal). Every statement is what the recorder found when it wrote, never what it
+    meant to write. True if the record failed."""
     journal = summary.get("journal") or {}
     if not journal.get("error"):
         return False
-    tail = {True: "the rest of the run (the failure, the stop, the last ticks) was written "
-                  "into the space the files keep reserved",
-            False: "the rest of the run did not fit into the reserved space and was not "
-                   "written: both files end before the failure",
-            None: "the failure came after the control loop had ended"}[journal["tail_written"]]
     lines = [f"the run's record could not be written ({journal['error']})",
              "the core stopped the arm (RECORDER_FAILED) and the run ended"
              if journal["core_told"] else "the arm was held and the device closed as at the "
-             "end of any run",
-             f"{journal['gaps']} records lost; {tail}",
-             f"run directory: {journal['directory']}"
-             + (f" (summary.json {journal['summary_file']})" if "summary_file" in journal
-                else "")]
+             "end of any run"]
+    lines += [_file_held(name, held) for name, held in (journal.get("files") or {}).items()]
+    lines += [_tail_fate(journal), f"{journal['gaps']} records lost",
+              f"run directory: {journal['directory']}"
+              + (f" (summary.json {journal['summary_file']})" if "summary_file" in journal
+                 else "")]
     for line in lines:
         print(f"warden: {line}", file=sys.stderr)
     return True
+
+
+def _file_held(name: str, held: dict[str, Any]) -> str:
+    end = held["ends_at_t_ms"]
+    text = f"{name}: {held['lines']} lines written" + (
+        f", the last at t={end:.3f} ms" if end is not None else ", no record of the run")
+    if held["sync_error"]:
+        text += (f"; its sync at close failed ({held['sync_error']}): the disk may hold "
+                 "fewer")
+    return text
+
+
+def _tail_fate(journal: dict[str, Any]) -> str:
+    written = journal["tail_written"]
+    if written is None:
+        return "the failure came after the control loop had ended"
+    if written:
+        return ("the rest of the run (the failure, the stop, the last ticks) was written into "
+                "the space the files keep reserved")
+    return (f"the rest of the run (the failure, the stop, the last ticks) was NOT written: "
+            f"{journal['tail_error']}; the files end where said above")
 
 
 def configure_logging(args: argparse.Namespace) -> None:

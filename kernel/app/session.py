@@ -179,7 +179,8 @@ def finish(context: RunContext, extra: dict[str, Any]) -> dict[str, Any]:
     if stats.error is not None:  # what became of the run when its record failed
         journal.update(fault=context.recorder.fault,
                        core_told=context.cell.controller.record_failed,
-                       tail_written=stats.tail_written)
+                       tail_written=stats.tail_written, tail_error=stats.tail_error,
+                       files=context.recorder.files())
     summary.extra["journal"] = journal
     summary.extra["driver"] = {"refused_writes": context.cell.controller.counters.refused_writes,
                                "faults": "; ".join(context.cell.controller.counters.driver_faults)
