@@ -10,6 +10,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from kernel.app.interrupt import EXIT_INTERRUPTED
 from kernel.manifest import ClockKind, Manifest, ManifestError, load_manifest
 from kernel.scenario.bounds import CYCLES_MAX
 
@@ -74,8 +75,34 @@ def run_command(args: argparse.Namespace) -> int:
     output(summary, args.json_out)
     if report_record_failure(summary):
         return EXIT_RECORD_FAILED
+    if summary.get("interrupted"):
+        report_interrupt(summary, manifest.cell.cycles, journal_dir is not None)
+        return EXIT_INTERRUPTED[summary["interrupted"]]
     cycles = summary["cycles"]
     return 0 if cycles["verified"] == cycles["attempted"] == manifest.cell.cycles else 1
+
+
+def report_interrupt(summary: dict[str, Any], planned: int, journaled: bool) -> None:
+    """Say on stderr that a signal ended the run, where, and that the arm was left held."""
+    cycles, signal_name = summary["cycles"], summary["interrupted"]
+    cut = summary["cycle_cut_short"]
+    if cut is not None:
+        where = (f"during cycle {cut} of {planned}; the run ended there: the arm "
+                 "was held and the device closed")
+    elif not summary["loop"]["ticks"]:
+        where = "before the first tick; the run ended there: nothing moved, the device was closed"
+    else:
+        where = "after its last cycle: the arm was held and the device closed"
+    directory = summary["journal"]["directory"]
+    lines = [f"interrupted by {signal_name} {where}",
+             f"{cycles['verified']} of {cycles['attempted']} cycles attempted were verified"
+             + (" (the interrupted one counts as attempted, not verified)"
+                if cut is not None else ""),
+             f"journal closed: {directory}/journal.jsonl replays the run" if directory != "-"
+             else "no run directory kept: nothing was recorded" if journaled
+             else "no journal was kept (journal disabled)"]
+    for line in lines:
+        print(f"warden: {line}", file=sys.stderr)
 
 
 def journal_directory(manifest: Manifest, override: str | None,

@@ -66,8 +66,9 @@ def test_a_cell_with_launch_false_runs_against_a_served_policy(tmp_path: Path) -
     for old, new in (("launch = true ", "launch = false"), ("port = 0 ", f"port = {port}")):
         assert text.count(old) == 1
         text = text.replace(old, new)
+    # An operator socket of its own: the default one may be another warden's on this host.
     own = tmp_path / "own-server.toml"
-    own.write_text(text)
+    own.write_text(text + f'\n[operator]\nsocket = "{tmp_path / "operator.sock"}"\n')
     with _serve_policy("manifests/sim-ur5e.toml", "--port", str(port)) as server:
         assert server.poll() is None
         code = main(["run", str(own), "--cycles", "1", "--journal-dir", str(tmp_path / "runs")])
