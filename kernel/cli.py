@@ -3,7 +3,7 @@
     warden replay SCENARIO|JOURNAL [--out FILE] [--pretty] [--check]
     warden run [MANIFEST] [--cycles N] [--clock wall|virtual] [--json FILE]
     warden check MANIFEST [--seconds S] [--keys DIR] [--json FILE]
-    warden serve-policy [server options]
+    warden serve-policy [MANIFEST] [--host HOST] [--port N] [--expose]
     warden manifest keygen|sign|verify ...
 
 Exit codes: 0 the command ran (a refused chunk is a result, not an error); 1 ``--check`` found
@@ -12,7 +12,9 @@ named), or ``warden check`` found a check NOT READY; 2 invalid input (the messag
 file, the place and the field); 3 the record is incomplete: ``warden run`` could not write its
 journal (the core stopped the arm and the run ended), or ``warden replay`` found a journal or
 decision log that ends early (a last line cut off, or a decision log that stops before the
-replay does); everything both files hold was replayed, compared and identical.
+replay does); everything both files hold was replayed, compared and identical; 130 / 143
+``warden run`` was ended by SIGINT / SIGTERM, in order (the arm held, the journal closed:
+:mod:`kernel.app.interrupt`).
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ import msgspec
 
 from drivers.base import DriverError
 from kernel import signing
+from kernel.app.interrupt import EXIT_INTERRUPTED
 from kernel.cli_check import add_commands as add_check_commands
 from kernel.cli_operator import add_commands as add_operator_commands
 from kernel.cli_run import add_commands
@@ -52,6 +55,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_INVALID
     except BrokenPipeError:
         return EXIT_OK
+    except KeyboardInterrupt:  # Ctrl-C outside a run (a run notes it and ends in order)
+        print("warden: interrupted (SIGINT)", file=sys.stderr)
+        return EXIT_INTERRUPTED["SIGINT"]
 
 
 def _parser() -> argparse.ArgumentParser:

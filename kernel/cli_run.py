@@ -10,6 +10,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from kernel.app.interrupt import EXIT_INTERRUPTED
 from kernel.manifest import ClockKind, Manifest, ManifestError, load_manifest
 from kernel.scenario.bounds import CYCLES_MAX
 
@@ -41,10 +42,22 @@ def add_commands(commands: Any) -> None:
     run.add_argument("--log-level", default="INFO", help="DEBUG, INFO, WARNING, ERROR")
     run.set_defaults(handler=run_command)
     serve = commands.add_parser(
-        "serve-policy", help="run the reference policy server (scripted insertion policy)",
-        description="Arguments are those of `python -m stubs.policy_server --help`.",
-        add_help=False)
-    serve.add_argument("server_args", nargs=argparse.REMAINDER)
+        "serve-policy", help="serve the reference policy a manifest's cell expects",
+        description="Serve, in the foreground until SIGINT or SIGTERM, exactly the reference "
+                    "policy server `warden run` launches for MANIFEST (its offer, goal, latency "
+                    "model, noise and seed), on --host and --port. A copy of the manifest with "
+                    "`[policy] launch = false` and that host and port runs against it "
+                    "(docs/operations.md, \"Running the policy server yourself\"). Prints "
+                    "`READY {\"port\": N}` on stdout once it listens.")
+    serve.add_argument("manifest", nargs="?", default=str(DEFAULT_MANIFEST),
+                       help="the cell's manifest (TOML); default: the simulated UR5e cell")
+    serve.add_argument("--host", help="address to listen on (default: the manifest's "
+                                      "policy.host); not loopback only with --expose")
+    serve.add_argument("--port", type=int, help="port to listen on, 0 … 65535 (default: the "
+                                                "manifest's policy.port; 0 picks a free one)")
+    serve.add_argument("--expose", action="store_true",
+                       help="listen on a --host that is not loopback (the link has no "
+                            "authentication)")
     serve.set_defaults(handler=serve_command)
 
 
@@ -66,8 +79,34 @@ def run_command(args: argparse.Namespace) -> int:
     output(summary, args.json_out, structured)
     if report_record_failure(summary):
         return EXIT_RECORD_FAILED
+    if summary.get("interrupted"):
+        report_interrupt(summary, manifest.cell.cycles, journal_dir is not None)
+        return EXIT_INTERRUPTED[summary["interrupted"]]
     cycles = summary["cycles"]
     return 0 if cycles["verified"] == cycles["attempted"] == manifest.cell.cycles else 1
+
+
+def report_interrupt(summary: dict[str, Any], planned: int, journaled: bool) -> None:
+    """Say on stderr that a signal ended the run, where, and that the arm was left held."""
+    cycles, signal_name = summary["cycles"], summary["interrupted"]
+    cut = summary["cycle_cut_short"]
+    if cut is not None:
+        where = (f"during cycle {cut} of {planned}; the run ended there: the arm "
+                 "was held and the device closed")
+    elif not summary["loop"]["ticks"]:
+        where = "before the first tick; the run ended there: nothing moved, the device was closed"
+    else:
+        where = "after its last cycle: the arm was held and the device closed"
+    directory = summary["journal"]["directory"]
+    lines = [f"interrupted by {signal_name} {where}",
+             f"{cycles['verified']} of {cycles['attempted']} cycles attempted were verified"
+             + (" (the interrupted one counts as attempted, not verified)"
+                if cut is not None else ""),
+             f"journal closed: {directory}/journal.jsonl replays the run" if directory != "-"
+             else "no run directory kept: nothing was recorded" if journaled
+             else "no journal was kept (journal disabled)"]
+    for line in lines:
+        print(f"warden: {line}", file=sys.stderr)
 
 
 def journal_directory(manifest: Manifest, override: str | None,
@@ -91,28 +130,46 @@ def journal_directory(manifest: Manifest, override: str | None,
 
 
 def report_record_failure(summary: dict[str, Any]) -> bool:
-    """Say on stderr why a run whose record failed ended, what was lost and where the rest
-    is (stderr may be the only record left: under systemd it lands in the system journal).
-    True if the record failed."""
+    """Say on stderr why a run whose record failed ended, what each file holds, what was lost
+    and where the rest is (stderr may be the only record left: under systemd it lands in the
+    system journal). Every statement is what the recorder found when it wrote, never what it
+    meant to write. True if the record failed."""
     journal = summary.get("journal") or {}
     if not journal.get("error"):
         return False
-    tail = {True: "the rest of the run (the failure, the stop, the last ticks) was written "
-                  "into the space the files keep reserved",
-            False: "the rest of the run did not fit into the reserved space and was not "
-                   "written: both files end before the failure",
-            None: "the failure came after the control loop had ended"}[journal["tail_written"]]
     lines = [f"the run's record could not be written ({journal['error']})",
              "the core stopped the arm (RECORDER_FAILED) and the run ended"
              if journal["core_told"] else "the arm was held and the device closed as at the "
-             "end of any run",
-             f"{journal['gaps']} records lost; {tail}",
-             f"run directory: {journal['directory']}"
-             + (f" (summary.json {journal['summary_file']})" if "summary_file" in journal
-                else "")]
+             "end of any run"]
+    lines += [_file_held(name, held) for name, held in (journal.get("files") or {}).items()]
+    lines += [_tail_fate(journal), f"{journal['gaps']} records lost",
+              f"run directory: {journal['directory']}"
+              + (f" (summary.json {journal['summary_file']})" if "summary_file" in journal
+                 else "")]
     for line in lines:
         print(f"warden: {line}", file=sys.stderr)
     return True
+
+
+def _file_held(name: str, held: dict[str, Any]) -> str:
+    end = held["ends_at_t_ms"]
+    text = f"{name}: {held['lines']} lines written" + (
+        f", the last at t={end:.3f} ms" if end is not None else ", no record of the run")
+    if held["sync_error"]:
+        text += (f"; its sync at close failed ({held['sync_error']}): the disk may hold "
+                 "fewer")
+    return text
+
+
+def _tail_fate(journal: dict[str, Any]) -> str:
+    written = journal["tail_written"]
+    if written is None:
+        return "the failure came after the control loop had ended"
+    if written:
+        return ("the rest of the run (the failure, the stop, the last ticks) was written into "
+                "the space the files keep reserved")
+    return (f"the rest of the run (the failure, the stop, the last ticks) was NOT written: "
+            f"{journal['tail_error']}; the files end where said above")
 
 
 def configure_logging(args: argparse.Namespace) -> bool:
@@ -229,9 +286,23 @@ def output(summary: dict[str, Any], json_out: str | None, structured: bool = Fal
 
 
 def serve_command(args: argparse.Namespace) -> int:
+    """``warden serve-policy``: the reference server a manifest's cell expects, in the
+    foreground (exit 0 on SIGINT or SIGTERM, 2 for invalid input)."""
     from kernel.app import standins
+    from kernel.app.compose import cell_context
+    from kernel.manifest import is_loopback
 
-    return int(standins.load(standins.POLICIES, "serve")(args.server_args))
+    manifest = checked_manifest(args.manifest)
+    host = args.host if args.host is not None else manifest.policy.host
+    port = args.port if args.port is not None else manifest.policy.port
+    if not 0 <= port <= 65535:
+        raise ManifestError(f"--port: must be 0 to 65535, got {port}")
+    if not (args.expose or is_loopback(host)):
+        raise ManifestError(f"--host: {host!r} is not a loopback address: other hosts could "
+                            "reach the server (the link has no authentication); add --expose "
+                            "to mean it")
+    serve = standins.load(standins.POLICIES, "serve")
+    return int(serve(cell_context(manifest), host, port))
 
 
 __all__ = ["add_commands"]

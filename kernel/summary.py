@@ -38,7 +38,8 @@ def percentiles(values: list[float]) -> dict[str, float | None]:
 class CycleResult:
     index: int
     verified: bool
-    depth_m: float
+    depth_m: float | None
+    """None: the cycle ended before anything was measured (the run was cut short)."""
     duration_s: float
     reason: str = ""
 

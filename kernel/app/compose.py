@@ -28,7 +28,7 @@ from kernel.scenario.fields import Where
 from kernel.scenario.kinematics import model_spec
 from kernel.shell.gateway import CoreGateway
 from kernel.shell.recorder import Recorder
-from kernel.shell.timer import Clock
+from kernel.shell.timer import Clock, MonotonicClock
 from skills.planner import Planner
 
 
@@ -114,6 +114,25 @@ def build_cell(manifest: Manifest, config: CoreConfig, world: World, clock: Cloc
     context = CellContext(manifest, runner.layout, planner, kinematics, gateway)
     return Cell(manifest, core, gateway, world, driver, controller, context,
                 isinstance(world, DeviceWorld))
+
+
+def cell_context(manifest: Manifest) -> CellContext:
+    """What a stand-in needs of a cell that is not built (``warden serve-policy``): the task's
+    layout and the arm's model, exactly as :func:`build_cell` makes them.
+
+    Raises:
+        ManifestError: the manifest has no arm model, or its task does not fit the arm.
+    """
+    kinematics = manifest.core.kinematics
+    if kinematics is None:
+        raise ManifestError(f"{manifest.path}: robot: the assembly task needs the arm's model "
+                            "('kinematics' or 'model')")
+    core = Core(manifest.core)
+    limits = core.state.motion.planner_limits
+    runner = assembly_runner(manifest, kinematics, limits, None)
+    planner = Planner(kinematics, limits, runner.layout.tool_down)
+    return CellContext(manifest, runner.layout, planner, kinematics,
+                       CoreGateway(core, MonotonicClock()))
 
 
 def source_of(manifest: Manifest) -> str:

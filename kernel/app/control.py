@@ -80,14 +80,32 @@ class ControlLoop:
         """The recorder failed and the core was told: the run ends after this tick."""
         self._refusing = False
         self._cycle_started_ns = 0
+        self._started = False
+        self.cut: CycleResult | None = None
+        """The cycle the run's end cut short, if one was under way (:meth:`cut_short`)."""
 
     @property
     def finished(self) -> bool:
         return len(self.results) >= self.cycles
 
     def start(self) -> None:
+        self._started = True
         self._cycle_started_ns = self.gateway.now_ns()
         self.runner.begin(self._cycle_started_ns)
+
+    def cut_short(self, reason: str) -> None:
+        """The run ends with a cycle under way (interrupted, out of time, its record failed):
+        that cycle was attempted and is not verified; ``reason`` says why it did not finish."""
+        if not self._started or self.finished:
+            return
+        result = CycleResult(
+            index=len(self.results) + 1, verified=False, depth_m=None,
+            duration_s=round((self.gateway.now_ns() - self._cycle_started_ns) * 1e-9, 3),
+            reason=reason)
+        self.cut = result
+        self.results.append(result)
+        if self.on_cycle is not None:
+            self.on_cycle(result)
 
     async def tick(self) -> None:
         sample = await self._read()

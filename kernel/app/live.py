@@ -9,11 +9,9 @@ link: the core degrades, the link is restarted and must handshake again).
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import gc
-import signal
 import threading
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -21,9 +19,18 @@ import structlog
 
 from kernel.app import standins
 from kernel.app.compose import source_of
+from kernel.app.interrupt import StopSignals
 from kernel.app.operator import operator_server
 from kernel.app.report import CycleProgress
-from kernel.app.session import RunContext, bring_up, finish, open_run, report_progress
+from kernel.app.session import (
+    RunContext,
+    bring_up,
+    close_record,
+    cut_short_reason,
+    finish,
+    open_run,
+    report_progress,
+)
 from kernel.core.events import LinkEvent, LinkStatus
 from kernel.manifest import Manifest, PolicySettings
 from kernel.shell.client import RobotClient
@@ -50,12 +57,21 @@ TickHook = Callable[[RunContext], bool]
 async def run_live(manifest: Manifest, journal_dir: Path | None,
                    progress: CycleProgress | None = None,
                    hook: TickHook | None = None) -> dict[str, Any]:
+    """The run, from start-up to summary, with SIGINT and SIGTERM noted throughout (a stop
+    requested at any point ends it in order: :mod:`kernel.app.interrupt`)."""
+    with StopSignals() as stop:
+        return await _run_live(manifest, journal_dir, progress, hook, stop)
+
+
+async def _run_live(manifest: Manifest, journal_dir: Path | None,
+                    progress: CycleProgress | None, hook: TickHook | None,
+                    stop: StopSignals) -> dict[str, Any]:
     context = open_run(manifest, MonotonicClock(), journal_dir, progress)
     try:
         operator = operator_server(context.cell)
     except BaseException:
         context.cell.world.close()
-        context.recorder.close()
+        close_record(context)
         raise
     server: _Launched | None = None
     worker = JobWorker(context.cell.gateway, context.sections, source_of(manifest))
@@ -63,26 +79,27 @@ async def run_live(manifest: Manifest, journal_dir: Path | None,
     log_report(log, realtime)
     service = ServiceNotifier.from_env()
     failures: list[str] = []
-    loop = _Loop(context, progress, hook, service, realtime.summary())
+    loop = _Loop(context, progress, hook, service, realtime.summary(), stop)
     loop.heartbeat = _heartbeat(manifest)
     context.heartbeat = loop.heartbeat.stats if loop.heartbeat.enabled else None
     client: RobotClient | None = None
     try:
         # A stop requested during start-up (device bring-up, policy server start) is kept and
         # honoured before the first tick, through the same orderly shutdown.
-        with _stop_on_signals(loop):
-            worker.start()
-            await bring_up(context)  # a device that is not there fails here, before anything
-            url = f"ws://{manifest.policy.host}:{manifest.policy.port}"
-            if not loop.stop_requested and manifest.policy.launch:
-                server = _Launched(standins.load(standins.POLICIES, "reference")(
-                    context.cell.context))
-                url = server.start()
-            if not loop.stop_requested:
-                client = RobotClient(client_config(manifest.policy, url), context.cell.gateway,
-                                     pacer=loop.pacer, server=server)
-                await _supervise(context, client, worker, operator, loop, failures)
+        worker.start()
+        await bring_up(context)  # a device that is not there fails here, before anything
+        url = f"ws://{manifest.policy.host}:{manifest.policy.port}"
+        if not stop.requested and manifest.policy.launch:
+            server = _Launched(standins.load(standins.POLICIES, "reference")(
+                context.cell.context))
+            url = server.start()
+        if not stop.requested:
+            client = RobotClient(client_config(manifest.policy, url), context.cell.gateway,
+                                 pacer=loop.pacer, server=server)
+            await _supervise(context, client, worker, operator, loop, failures)
     finally:
+        context.cell.controller.cut_short(cut_short_reason(
+            context, stop, failures, ended_by_hook=loop.ended_by_hook))
         service.stopping("holding the arm and closing the device")
         await context.cell.driver.aclose()
         loop.heartbeat.close()  # END only now: the arm is held and the device closed
@@ -93,10 +110,11 @@ async def run_live(manifest: Manifest, journal_dir: Path | None,
         service.close()
         if server is not None:
             await asyncio.to_thread(server.stop)  # after a restart still under way, if any
-        context.recorder.close()
+        close_record(context)
     return finish(context, {
-        "clock": "wall", "stopped": loop.stop_requested,
-        "timed_out": not (context.cell.controller.finished or loop.stop_requested
+        "clock": "wall", "stopped": stop.requested,
+        "interrupted": stop.received.name if stop.received else None,
+        "timed_out": not (context.cell.controller.finished or stop.requested
                           or context.cell.controller.record_failed),
         "task_failures": failures, "loop": {"realtime": realtime.summary()},
         "link": {k: v for k, v in client.counters.snapshot().items() if v} if client else {},
@@ -153,10 +171,11 @@ class _Loop:
     policy link's work never pushes a tick past its deadline."""
 
     def __init__(self, context: RunContext, progress: CycleProgress | None,
-                 hook: TickHook | None, service: ServiceNotifier, scheduling: str) -> None:
+                 hook: TickHook | None, service: ServiceNotifier, scheduling: str,
+                 stop: StopSignals) -> None:
         self.context, self.progress, self.hook = context, progress, hook
-        self.service, self.scheduling = service, scheduling
-        self.stop_requested = False
+        self.service, self.scheduling, self.stop = service, scheduling, stop
+        self.ended_by_hook = False
         self.heartbeat = HeartbeatSender(None)
         self._status = ""
         period = context.cell.core.config.control_period_ns
@@ -168,7 +187,7 @@ class _Loop:
         budget_ns = round(manifest.cell.cycle_timeout_s * 1e9) * manifest.cell.cycles
         cell.controller.start()
         async with PeriodicTimer(period, early_ns=EARLY_WAKE_NS) as timer:
-            while not (cell.controller.finished or self.stop_requested
+            while not (cell.controller.finished or self.stop.requested
                        or cell.controller.record_failed) and cell.gateway.now_ns() < budget_ns:
                 tick = await timer.wait()
                 self.context.lateness_ns.append(tick.lateness_ns)
@@ -180,6 +199,7 @@ class _Loop:
                 self.heartbeat.beat()  # ... and the safety monitor's heartbeat
                 self._report()
                 if self.hook is not None and self.hook(self.context):
+                    self.ended_by_hook = True
                     break
         self.heartbeat.closing()  # ended in order (an error skips this: the monitor stops)
 
@@ -258,22 +278,3 @@ def task_failed(context: RunContext, failures: list[str], name: str,
     if name == "policy-link":
         gateway = context.cell.gateway
         gateway.feed(LinkEvent(t=gateway.now_ns(), status=LinkStatus.DOWN))
-
-
-@contextlib.contextmanager
-def _stop_on_signals(loop: _Loop) -> Iterator[None]:
-    """SIGTERM (systemctl stop) and SIGINT end the run through the normal path: the loop
-    finishes its tick, the arm is held and the device closed, the journal flushed."""
-    event_loop = asyncio.get_running_loop()
-    signals = (signal.SIGTERM, signal.SIGINT)
-
-    def request_stop() -> None:
-        loop.stop_requested = True
-
-    for signum in signals:
-        event_loop.add_signal_handler(signum, request_stop)
-    try:
-        yield
-    finally:
-        for signum in signals:
-            event_loop.remove_signal_handler(signum)

@@ -11,8 +11,16 @@ from pathlib import Path
 from typing import Any
 
 from kernel.app import standins
+from kernel.app.interrupt import StopSignals
 from kernel.app.report import CycleProgress
-from kernel.app.session import bring_up, finish, open_run, report_progress
+from kernel.app.session import (
+    bring_up,
+    close_record,
+    cut_short_reason,
+    finish,
+    open_run,
+    report_progress,
+)
 from kernel.manifest import Manifest, ManifestError
 from kernel.shell.timer import VirtualClock
 from kernel.shell.worker import InlineJobs
@@ -23,6 +31,12 @@ async def run_lockstep(manifest: Manifest, journal_dir: Path | None,
     if manifest.driver_name != "sim":
         raise ManifestError(f"{manifest.path}: cell.clock: a virtual clock needs the in-process "
                             f"plant (driver 'sim'); {manifest.driver_name!r} runs in real time")
+    with StopSignals() as stop:  # SIGINT, SIGTERM: end in order (kernel.app.interrupt)
+        return await _run(manifest, journal_dir, progress, stop)
+
+
+async def _run(manifest: Manifest, journal_dir: Path | None, progress: CycleProgress | None,
+               stop: StopSignals) -> dict[str, Any]:
     clock = VirtualClock()
     context = open_run(manifest, clock, journal_dir, progress)
     cell = context.cell
@@ -33,18 +47,21 @@ async def run_lockstep(manifest: Manifest, journal_dir: Path | None,
     try:
         await bring_up(context)
         link.connect()
-        cell.controller.start()
-        while not (cell.controller.finished or cell.controller.record_failed) and (
-                cell.gateway.now_ns() < budget_ns):
+        if not stop.requested:
+            cell.controller.start()
+        while not (cell.controller.finished or cell.controller.record_failed
+                   or stop.requested) and cell.gateway.now_ns() < budget_ns:
             link.deliver_due()
             await cell.controller.tick()
             context.recorder.hand_over_if_due()
             report_progress(context, progress)
             clock.advance(period)
     finally:
+        cell.controller.cut_short(cut_short_reason(context, stop, []))
         await cell.driver.aclose()
         cell.world.close()
-        context.recorder.close()
-    timed_out = not (cell.controller.finished or cell.controller.record_failed)
-    return finish(context, {"clock": "virtual", "timed_out": timed_out,
+        close_record(context)
+    timed_out = not (cell.controller.finished or cell.controller.record_failed or stop.requested)
+    return finish(context, {"clock": "virtual", "timed_out": timed_out, "stopped": stop.requested,
+                            "interrupted": stop.received.name if stop.received else None,
                             "link": {"requests": link.requests}, "jobs": {"done": jobs.done}})

@@ -65,7 +65,7 @@ class CycleProgress:
     def cycle_done(self, result: CycleResult) -> None:
         verdict = "verified" if result.verified else f"FAILED ({result.reason})"
         text = (f"cycle {result.index}/{self.cycles}: {verdict}, peg depth "
-                f"{result.depth_m * 1000:.1f} mm, {result.duration_s:.1f} s")
+                f"{_depth(result.depth_m)}, {result.duration_s:.1f} s")
         if self._progress is not None:
             self._progress.update(self._task, completed=len(STEPS) - 1, step="done",
                                   mode="verified" if result.verified else "failed")
@@ -102,7 +102,7 @@ def _rows(s: dict[str, Any]) -> list[tuple[str, str]]:
     for cycle in s["cycles"]["detail"]:
         verdict = "verified" if cycle["verified"] else f"failed: {cycle['reason']}"
         rows.append((f"  cycle {cycle['index']}", f"{verdict}, depth "
-                     f"{cycle['depth_m'] * 1000:.1f} mm, {cycle['duration_s']:.1f} s"))
+                     f"{_depth(cycle['depth_m'])}, {cycle['duration_s']:.1f} s"))
     rows.append(("proposals by phase", _counts(s["proposals_by_phase"])))
     rows.append(("decisions", _counts(s["decisions"])))
     for phase, reasons in s["refusals_by_phase_and_reason"].items():
@@ -131,6 +131,10 @@ def _rows(s: dict[str, Any]) -> list[tuple[str, str]]:
         if s.get(key):
             rows.append((key, _counts(s[key]) if isinstance(s[key], dict) else str(s[key])))
     return rows
+
+
+def _depth(depth_m: float | None) -> str:
+    return "not measured" if depth_m is None else f"{depth_m * 1000:.1f} mm"
 
 
 def _counts(counts: dict[str, Any]) -> str:

@@ -15,6 +15,7 @@ from typing import Any
 
 from drivers.base import ControlConfig
 from kernel.app.compose import Cell, build_cell, effective, world_for
+from kernel.app.interrupt import StopSignals
 from kernel.app.report import CycleProgress
 from kernel.core.config import CoreConfig
 from kernel.journal import header
@@ -59,13 +60,15 @@ class RunFiles:
                     record.close()
 
     def discard(self) -> None:
-        """Close and remove the files of a run that never started (nothing was recorded)."""
+        """Close and remove the files of a run that never started (nothing was recorded):
+        a journal holding its header alone is no record of a run, and no replay reads it."""
         self.close()
         if self.directory is not None:
             for record in (self.journal, self.decisions):
                 if record is not None:
                     record.path.unlink(missing_ok=True)
             self.directory.rmdir()
+        self.directory = self.journal = self.decisions = None
 
 
 @dataclass
@@ -101,6 +104,7 @@ def open_run(manifest: Manifest, clock: Clock, journal_dir: Path | None,
     except BaseException:
         files.discard()
         raise
+    recorder: Recorder | None = None
     try:
         config, sections = effective(manifest, world)
         head = {**header(sections, manifest.name),
@@ -109,12 +113,39 @@ def open_run(manifest: Manifest, clock: Clock, journal_dir: Path | None,
         cell = build_cell(manifest, config, world, clock, recorder)
     except BaseException:
         world.close()  # an emulator already started must not outlive a failed build
-        files.close()
+        if recorder is not None:
+            recorder.close()
+        with contextlib.suppress(OSError):  # a directory that failed: the error says so
+            files.discard()
         raise
     context = RunContext(manifest, cell, recorder, files, sections)
     cell.gateway.listeners.append(context.summary.observe_all)
     cell.controller.on_cycle = _on_cycle(context, progress)
     return context
+
+
+def close_record(context: RunContext) -> None:
+    """Close the run's record; a run that recorded nothing (refused or stopped before its
+    first tick) leaves no run directory."""
+    context.recorder.close()
+    stats = context.recorder.stats
+    if stats.events == 0 and stats.lines == 0 and stats.error is None:
+        with contextlib.suppress(OSError):  # kept then, and said so in the summary
+            context.files.discard()
+
+
+def cut_short_reason(context: RunContext, stop: StopSignals, failures: list[str],
+                     ended_by_hook: bool = False) -> str:
+    """Why a run ended with a cycle under way (what :meth:`ControlLoop.cut_short` records)."""
+    if stop.received is not None:
+        return f"interrupted by {stop.received.name}"
+    if context.cell.controller.record_failed:
+        return "the run's record could not be written"
+    if failures:
+        return f"a task failed: {failures[0]}"
+    if ended_by_hook:
+        return "the run was ended before the cycle finished"
+    return "the run's time (cell.cycle_timeout_s per cycle) ran out"
 
 
 def _recorder(files: RunFiles, head: dict[str, Any]) -> Recorder:
@@ -175,13 +206,16 @@ def finish(context: RunContext, extra: dict[str, Any]) -> dict[str, Any]:
         "lateness_us": _lateness(lateness), **extra.pop("loop", {}),
     }
     summary.extra.update(extra)
+    cut = context.cell.controller.cut
+    summary.extra["cycle_cut_short"] = cut.index if cut is not None else None
     stats = context.recorder.stats
     journal: dict[str, Any] = {"directory": str(context.files.directory or "-"),
                                "events": stats.events, "gaps": stats.gaps, "error": stats.error}
     if stats.error is not None:  # what became of the run when its record failed
         journal.update(fault=context.recorder.fault,
                        core_told=context.cell.controller.record_failed,
-                       tail_written=stats.tail_written)
+                       tail_written=stats.tail_written, tail_error=stats.tail_error,
+                       files=context.recorder.files())
     summary.extra["journal"] = journal
     summary.extra["driver"] = {"refused_writes": context.cell.controller.counters.refused_writes,
                                "faults": "; ".join(context.cell.controller.counters.driver_faults)

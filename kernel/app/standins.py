@@ -10,8 +10,8 @@ manifest that asks for a stand-in that is not installed is refused with its name
 - ``warden.worlds``, by driver name (``sim``, ``ur_rtde``, ...): ``factory(manifest) -> World``,
   the plant, or the driver's emulator with the plant behind it;
 - ``warden.policies``: ``reference`` (the reference policy server as a process on loopback),
-  ``local`` (the reference policy in process, on the virtual clock), ``serve`` (the server's
-  command line, for ``warden serve-policy``);
+  ``local`` (the reference policy in process, on the virtual clock), ``serve`` (the same server
+  in the foreground, for ``warden serve-policy``: ``serve(context, host, port) -> exit code``);
 - ``warden.operators``: ``simulated`` (the simulated operator).
 """
 

@@ -78,6 +78,12 @@ class RecordFile:
         self.preallocates = True
         self.end = 0
         """Bytes written, all of them whole lines."""
+        self.lines = 0
+        """Lines written."""
+        self.last_line = b""
+        """The last line written (without its newline): where the file ends."""
+        self.sync_error: str | None = None
+        """Why the data could not be written back to the disk at close, if it could not."""
         self._fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_APPEND
                            | os.O_CLOEXEC, 0o644)
         try:
@@ -123,6 +129,9 @@ class RecordFile:
             self._cut_back()
             raise
         self.end += len(data)
+        self.lines += data.count(b"\n")
+        body = data.rstrip(b"\n")
+        self.last_line = body[body.rfind(b"\n") + 1:]
 
     def _write(self, data: memoryview) -> int:
         """One ``write(2)``: the boundary where a disk that fails part-way can be injected."""
@@ -145,6 +154,9 @@ class RecordFile:
                 with contextlib.suppress(OSError):
                     os.ftruncate(self._fd, self.end)
             os.fdatasync(self._fd)
+        except OSError as error:
+            self.sync_error = error.strerror or str(error)
+            raise
         finally:
             fd, self._fd = self._fd, -1
             os.close(fd)

@@ -44,7 +44,11 @@ class RecorderStats:
     error: str | None = None
     """The first write error (file, exception type and errno text)."""
     tail_written: bool | None = None
-    """After a failure: whether what the run recorded from then on fit into the reserve."""
+    """After a failure: whether what the run recorded from then on was written (into the
+    reserve), all of it."""
+    tail_error: str | None = None
+    """After a failure, why the rest of the run was not written: it outgrew the reserve, or
+    the disk refused it too (a read-only or failing file system: the reserve does not help)."""
 
 
 class Recorder:
@@ -219,16 +223,33 @@ class Recorder:
     def _write_tail(self) -> None:
         """After a failure: the rest of the run into the reserve, if all of it fits, in the
         order it was recorded; the first part the disk refuses ends it (a part written after
-        a lost one would leave a hole, and the decision log never gets ahead of the journal)."""
-        writing = self.stats.tail_written = self._tail.fits()
+        a lost one would leave a hole, and the decision log never gets ahead of the journal).
+        Only a tail actually written is said to be written."""
+        writing = self._tail.fits()
+        if not writing:
+            self.stats.tail_error = "it did not fit into the space the files keep reserved"
         for part in self._tail.parts:
             if writing:
                 try:
                     part.file.append(part.data)
                     continue
-                except OSError:
+                except OSError as error:
                     writing = False
+                    self.stats.tail_error = f"{part.file.path.name}: {error.strerror or error}"
             self._count_gap(part.count)
+        self.stats.tail_written = writing
+
+    def files(self) -> dict[str, dict[str, Any]]:
+        """What each file holds, as written (after :meth:`close`): its lines, the time of its
+        last record (ms of run time; None for none, or a header only) and, if the data could not
+        be written back to the disk at close, why."""
+        held: dict[str, dict[str, Any]] = {}
+        for record in (self._journal, self._decisions):
+            if record is not None:
+                held[record.path.name] = {"lines": record.lines,
+                                          "ends_at_t_ms": _time_of(record.last_line),
+                                          "sync_error": record.sync_error}
+        return held
 
     def _failed(self, record: RecordFile, error: OSError) -> None:
         if self.fault is None:
@@ -277,6 +298,16 @@ class _Tail:
 
     def fits(self) -> bool:
         return not self.overflowed
+
+
+def _time_of(line: bytes) -> float | None:
+    """The run time of a record line (``t``), None for the header or no line."""
+    try:
+        record = json.loads(line) if line else None
+    except ValueError:
+        return None
+    value = record.get("t") if isinstance(record, dict) else None
+    return float(value) if isinstance(value, int | float) else None
 
 
 def _ordinary_priority() -> None:

@@ -74,11 +74,16 @@ class JobWorker:
 
     def start(self) -> None:
         # No preexec_fn: it would make subprocess fork() this large, memory-locked process
-        # instead of vfork() (the child asks for PR_SET_PDEATHSIG itself, in main()).
+        # instead of vfork() (the child asks for PR_SET_PDEATHSIG itself, in main()). A
+        # session of its own (setsid, which vfork allows): a terminal's Ctrl-C goes to
+        # warden's process group, and must reach warden alone, which ends the run in order
+        # and this worker by closing its stdin (the worker's own KeyboardInterrupt was a
+        # traceback on every Ctrl-C).
         with children_at_ordinary_priority():  # the loop's priority is the loop's alone
             self._process = subprocess.Popen(
                 [sys.executable, "-m", "kernel.shell.worker"], stdin=subprocess.PIPE,
-                stdout=subprocess.PIPE, env={**os.environ, _PARENT_PID: str(os.getpid())})
+                stdout=subprocess.PIPE, env={**os.environ, _PARENT_PID: str(os.getpid())},
+                start_new_session=True)
         self._send(self._init)
 
     async def run(self, started: Any = None) -> None:

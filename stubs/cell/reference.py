@@ -87,29 +87,43 @@ class ReferenceServer:
             self.process = None
 
     def _args(self) -> list[str]:
-        manifest, settings = self.manifest, self.manifest.policy
-        offer = offer_for(manifest)
-        return [
-            "--host", settings.host, "--port", str(settings.port),
-            "--goal", ",".join(f"{v:.9f}" for v in self.goal),
-            "--max-speed", str(POLICY_SPEED), "--max-acceleration", str(POLICY_ACCELERATION),
-            "--noise", str(settings.noise_rad), "--horizon", str(settings.chunk_horizon),
-            "--action-dt-ms", str(settings.action_dt_ms),
-            "--latency-median-ms", str(settings.latency_median_ms),
-            "--latency-p95-ms", str(settings.latency_p95_ms),
-            "--clock-offset-ms", str(settings.clock_offset_ms),
-            "--seed", str(manifest.cell.seed),
-            "--checkpoint", offer.policy_checkpoint, "--config-hash", offer.config_hash,
-            "--observation-keys", ",".join(offer.observation_keys),
-            "--action-dim", str(offer.action_dim), "--action-units", offer.action_units,
-            "--action-frame", offer.action_frame, "--skill", offer.skill or "",
-            "--skill-version", offer.skill_version or "",
-            "--controller-mode", offer.controller_mode or "",
-            "--calibration-epoch", str(offer.calibration_epoch),
-            "--protocol", f"{offer.protocol[0]},{offer.protocol[1]}",
-            "--replacement-policy", "blend",
-        ]
+        settings = self.manifest.policy
+        return server_args(self.manifest, self.goal, settings.host, settings.port)
+
+
+def server_args(manifest: Manifest, goal: np.ndarray, host: str, port: int) -> list[str]:
+    """The server's command line for this manifest's cell, listening on ``host:port``."""
+    settings = manifest.policy
+    offer = offer_for(manifest)
+    return [
+        "--host", host, "--port", str(port),
+        "--goal", ",".join(f"{v:.9f}" for v in goal),
+        "--max-speed", str(POLICY_SPEED), "--max-acceleration", str(POLICY_ACCELERATION),
+        "--noise", str(settings.noise_rad), "--horizon", str(settings.chunk_horizon),
+        "--action-dt-ms", str(settings.action_dt_ms),
+        "--latency-median-ms", str(settings.latency_median_ms),
+        "--latency-p95-ms", str(settings.latency_p95_ms),
+        "--clock-offset-ms", str(settings.clock_offset_ms),
+        "--seed", str(manifest.cell.seed),
+        "--checkpoint", offer.policy_checkpoint, "--config-hash", offer.config_hash,
+        "--observation-keys", ",".join(offer.observation_keys),
+        "--action-dim", str(offer.action_dim), "--action-units", offer.action_units,
+        "--action-frame", offer.action_frame, "--skill", offer.skill or "",
+        "--skill-version", offer.skill_version or "",
+        "--controller-mode", offer.controller_mode or "",
+        "--calibration-epoch", str(offer.calibration_epoch),
+        "--protocol", f"{offer.protocol[0]},{offer.protocol[1]}",
+        "--replacement-policy", "blend",
+    ]
 
 
 def reference_server(context: CellContext, _: Any = None) -> ReferenceServer:
     return ReferenceServer(context)
+
+
+def serve(context: CellContext, host: str, port: int) -> int:
+    """``warden serve-policy``: the server :class:`ReferenceServer` would launch for this cell,
+    in this process, on ``host:port``, until SIGINT or SIGTERM."""
+    from stubs.policy_server.__main__ import main
+
+    return main(server_args(context.manifest, policy_goal(context), host, port))

@@ -8,6 +8,7 @@ clock (the live shell: recorder task, supervisor, policy server, job worker).
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 from typing import Any
@@ -17,7 +18,9 @@ import pytest
 from kernel.app.live import run_live
 from kernel.app.session import RunContext
 from kernel.cli import main
+from kernel.cli_run import report_record_failure
 from kernel.core.lines import Line, encode
+from kernel.settings import OperatorSettings
 from kernel.shell.loop import run
 from tests.cell.harness import manifest
 from tests.filesystems import ext4_image, small_tmpfs
@@ -83,21 +86,45 @@ class _FailTheDisk:
 
 
 @pytest.mark.slow
-def test_a_file_system_turned_read_only_mid_run_stops_the_arm(tmp_path: Path) -> None:
+@pytest.mark.parametrize(("how", "fault", "text"), [
+    ("read-only", "read_only", "Read-only file system"),
+    ("eio", "io_error", "Input/output error"),
+])
+def test_a_disk_failing_mid_run_stops_the_arm_and_the_report_matches_the_files(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str], how: str, fault: str,
+        text: str) -> None:
     with ext4_image(tmp_path) as fs:
-        hook = _FailTheDisk(fs.fail, after=500)
-        summary = run(run_live(manifest("sim-ur5e.toml", cycles=1), fs.mount_point, hook=hook))
+        hook = _FailTheDisk(fs.fail if how == "read-only" else fs.fail_with_eio, after=500)
+        # An operator socket of its own: the default one may be another warden's on this host.
+        cell = dataclasses.replace(manifest("sim-ur5e.toml", cycles=1), operator=OperatorSettings(
+            socket=str(tmp_path / "operator.sock")))
+        summary = run(run_live(cell, fs.mount_point, hook=hook))
         assert hook.context is not None, "the run ended before the disk failed"
         journal = summary["journal"]
-        assert journal["fault"] == "read_only" and journal["core_told"]
-        assert "Read-only file system" in journal["error"]
-        assert not summary["timed_out"] and summary["cycles"]["attempted"] == 0
+        assert journal["fault"] == fault and journal["core_told"]
+        assert text in journal["error"]
+        assert not summary["timed_out"]
+        (cut,) = summary["cycles"]["detail"]  # the cycle under way: attempted, not verified
+        assert (cut["verified"], cut["reason"]) == (False, "the run's record could not be written")
         lines = [json.loads(encode(line)) for line in hook.lines]
         (stop,) = [line for line in lines if line.get("trigger") == "RECORDER_FAILED"]
         assert stop["to"] == "CONTROLLER_STOP"
         ticks = [line for line in lines if line["kind"] == "tick" and line["t"] >= stop["t"]]
         assert ticks and all(t["command"] == "stop" for t in ticks)
         assert hook.context.cell.core.state.fallback.mode == "CONTROLLER_STOP"
+        # The reserve is no help on a disk that refuses every write: the tail is lost, and
+        # the report says so rather than what the recorder meant to write.
+        assert journal["tail_written"] is False and text in journal["tail_error"]
+        assert report_record_failure(summary)
+        err = capsys.readouterr().err
+        assert "was NOT written" in err and text in err and "written into the space" not in err
+        # What the summary and stderr say each file holds is what the disk holds.
+        directory = _run_dir(fs.mounted_again() if how == "eio" else fs.mount_point)
+        for name, held in journal["files"].items():
+            on_disk = (directory / name).read_bytes().splitlines()
+            last_t = json.loads(on_disk[-1])["t"]
+            assert (held["lines"], held["ends_at_t_ms"]) == (len(on_disk), last_t), name
+            assert f"{name}: {len(on_disk)} lines written, the last at t={last_t:.3f} ms" in err
+        assert journal["files"]["decisions.jsonl"]["ends_at_t_ms"] < stop["t"]
         # Neither file holds anything the other does not: what they hold replays as it was.
-        directory = _run_dir(fs.mount_point)
         assert main(["replay", str(directory / "journal.jsonl")]) == 0

@@ -138,8 +138,13 @@ def test_a_file_system_turned_read_only_is_reported(tmp_path: Path) -> None:
         assert recorder.fault is RecorderFault.READ_ONLY
         assert "Read-only file system" in (recorder.stats.error or "")
         recorder.close()
-        assert recorder.stats.tail_written is True  # tried, all or nothing...
-        assert recorder.stats.gaps == 1  # ...and the disk refused it: counted, never hidden
+        # Tried, and the disk refused it: said so, counted, never hidden.
+        assert recorder.stats.tail_written is False
+        assert "Read-only file system" in (recorder.stats.tail_error or "")
+        assert recorder.stats.gaps == 1
+        # The header and 99 events, as written; the disk also refused to sync them at close.
+        assert recorder.files()["journal.jsonl"] == {
+            "lines": 100, "ends_at_t_ms": 99.0, "sync_error": "Read-only file system"}
         assert [r.get("t") for r in _records(journal.path)[1:]] == list(range(1, 100))
 
 
