@@ -221,6 +221,8 @@ def test_a_second_warden_on_a_running_cell_exits_2_and_the_first_cycle_verifies(
         # timeouts and all, is behind it): the lock refuses them before they touch anything.
         while "cycle 1/1" not in (tmp_path / "first.log").read_text() and first.poll() is None:
             time.sleep(0.05)
+        assert first.poll() is None, "the first run ended on its own before any second one " \
+            f"started: {(tmp_path / 'first.log').read_text()}"
         for second in seconds:
             code, err = second.go()
             assert code == 2, err
