@@ -39,12 +39,13 @@ def _cell(tmp_path: Path) -> Path:
     return path
 
 
-def _start(tmp_path: Path, manifest: Path, cycles: int = 2) -> subprocess.Popen[bytes]:
+def _start(tmp_path: Path, manifest: Path, cycles: int = 2,
+           *extra: str) -> subprocess.Popen[bytes]:
     """`warden run` in a session of its own, as a terminal's foreground job is a group."""
     return subprocess.Popen(
         [sys.executable, "-m", "kernel.cli", "run", str(manifest), "--cycles", str(cycles),
          "--journal-dir", str(tmp_path / "runs"), "--json", str(tmp_path / "summary.json"),
-         "--log-format", "json"],
+         "--log-format", "json", *extra],
         cwd=ROOT, stdout=subprocess.DEVNULL, stderr=(tmp_path / "stderr").open("wb"),
         start_new_session=True)
 
@@ -107,6 +108,29 @@ def test_a_signal_mid_cycle_ends_the_run_holding_the_arm(
     capsys.readouterr()
     assert main(["replay", str(directory / "journal.jsonl")]) == 0
     assert "identical" in capsys.readouterr().err
+
+
+def test_ctrl_c_ends_a_lockstep_run_in_order(tmp_path: Path,
+                                            capsys: pytest.CaptureFixture[str]) -> None:
+    """The virtual clock's loop never yields to the event loop: the signal still reaches it."""
+    warden = _start(tmp_path, _cell(tmp_path), 50, "--clock", "virtual")
+    try:
+        _wait_for(warden, lambda: b"cycle 1/50  grasp" in (tmp_path / "stderr").read_bytes(),
+                  "cycle 1 under way")
+        os.killpg(warden.pid, signal.SIGINT)
+        assert warden.wait(timeout=TIMEOUT_S) == 130
+    finally:
+        if warden.poll() is None:
+            os.killpg(warden.pid, signal.SIGKILL)
+            warden.wait()
+    err = (tmp_path / "stderr").read_text()
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    cut = summary["cycle_cut_short"]
+    assert "Traceback" not in err and f"interrupted by SIGINT during cycle {cut} of 50" in err
+    cycles = summary["cycles"]
+    assert cycles["attempted"] == cut >= 1 and cycles["detail"][-1]["reason"] == (
+        "interrupted by SIGINT")
+    assert replays_identically(run_dir(tmp_path / "runs"))
 
 
 def test_a_stop_during_start_up_leaves_no_run_directory_or_one_that_replays(
