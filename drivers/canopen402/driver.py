@@ -65,6 +65,8 @@ FIRST_CYCLE_TIMEOUT_S = 1.0
 class CiA402Driver:
     device_watchdog = staticmethod(settings_module.device_watchdog)
     """What stops the arm when warden's commands stop, per manifest table (None: off)."""
+    device_watchdog_ms = staticmethod(settings_module.device_watchdog_ms)
+    """...and how long after warden's last command it does, in ms."""
 
     def __init__(self, settings: CiA402Settings) -> None:
         self.settings = settings

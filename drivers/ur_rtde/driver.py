@@ -65,6 +65,8 @@ class URRTDEDriver:
 
     device_watchdog = staticmethod(settings_module.device_watchdog)
     """What stops the arm when warden's commands stop, per manifest table (None: off)."""
+    device_watchdog_ms = staticmethod(settings_module.device_watchdog_ms)
+    """...and how long after warden's last command it does, in ms."""
 
     def __init__(self, settings: URSettings, name: str = "ur_rtde") -> None:
         self.name = name

@@ -33,7 +33,8 @@ from kernel import provenance
 from kernel.app import trial as trial_module
 from kernel.app.lockstep import run_lockstep
 from kernel.app.session import control_config
-from kernel.app.trial import load_trial, trial_card
+from kernel.app.trial import TrialBound, load_trial, verdict
+from kernel.app.trial_card import trial_card
 from kernel.cli_operator import send
 from kernel.cli_trial import _confirmed
 from kernel.core.runtime import Core
@@ -54,7 +55,7 @@ from tests.cell.test_trial import (
     trial_manifest,
     watched_trial,
 )
-from tests.safety.support import Monitor, wait_for
+from tests.safety.support import Monitor, safety_table, wait_for
 
 SHIPPED_VELOCITY = 3.1416
 """Every joint's velocity limit in the shipped sim-ur5e manifests."""
@@ -62,16 +63,18 @@ AT_REST_RAD_S = 0.01
 RUNTIME_STOPPED = 1
 
 
-def _signed_sim_trial(tmp: Path, cycles: int = 1, **envelope: Any) -> Path:
-    """The in-process sim-ur5e cell as a signed trial of ``cycles`` cycles, ``envelope``
-    replacing [trial] keys."""
+def _signed_sim_trial(tmp: Path, cycles: int = 1, cycle_timeout_s: float = 30.0,
+                      **envelope: Any) -> Path:
+    """The in-process sim-ur5e cell as a signed trial of ``cycles`` cycles (each within
+    ``cycle_timeout_s``), with a safety monitor's table, ``envelope`` replacing [trial] keys."""
     trial = TRIAL
     for key, value in envelope.items():
         old = next(line for line in trial.splitlines() if line.startswith(f"{key} = "))
         trial = trial.replace(old, f"{key} = {value}")
-    manifest = trial_manifest(tmp, trial=trial)
+    manifest = trial_manifest(tmp, trial=trial, extra=safety_table(tmp))
     manifest.write_text(manifest.read_text().replace(
-        "cycles = 1\nsimulated_operator", f"cycles = {cycles}\nsimulated_operator", 1))
+        "cycles = 1\nsimulated_operator", f"cycles = {cycles}\nsimulated_operator", 1).replace(
+        "cycle_timeout_s = 30.0", f"cycle_timeout_s = {cycle_timeout_s}", 1))
     sign(manifest, TEST_SIGNER)
     return manifest
 
@@ -113,12 +116,29 @@ def test_speed_scale_scales_the_limits_the_core_and_the_driver_use(tmp_path: Pat
 def test_max_cycles_caps_the_cells_cycles(tmp_path: Path) -> None:
     path = _signed_sim_trial(tmp_path, cycles=3, max_cycles=2, speed_scale=1.0)
     assert load_manifest(path).cell.cycles == 3  # the cell alone would run three
-    manifest = load_trial(path, TEST_KEYS)
+    with pytest.raises(ManifestError, match=r"trial.speed_scale: 1 reduces nothing"):
+        load_trial(path, TEST_KEYS)  # the manifest's own speeds: only with --full-speed
+    manifest = load_trial(path, TEST_KEYS, full_speed=True)
     assert manifest.cell.cycles == 2
     card = trial_card(manifest, tmp_path / "operator.sock", "monitor", tmp_path / "runs")
     assert "at most 2" in card.splitlines()[1]
+    assert "NOT reduced" in card.splitlines()[3], card
     summary, _ = _lockstep(manifest, tmp_path / "runs")
     assert summary["cycles"]["attempted"] == 2 and summary["cycles"]["verified"] == 2
+
+
+def test_a_trial_out_of_time_counts_its_unfinished_cycle(tmp_path: Path) -> None:
+    """A cycle that cannot finish within the run's time budget (cycles x cycle_timeout_s, a
+    cycle here takes several seconds): the trial fails, saying it timed out, and counts the
+    cycle under way as unfinished and the next as never started (it used to say "0 of 0")."""
+    path = _signed_sim_trial(tmp_path, cycles=2, cycle_timeout_s=1.0, max_cycles=2)
+    manifest = load_trial(path, TEST_KEYS)
+    summary, _ = _lockstep(manifest, tmp_path / "runs")
+    assert summary["timed_out"] and summary["cycles"]["attempted"] == 0
+    code, why = verdict(summary, TrialBound(60.0), manifest.cell.cycles)
+    assert code == 1
+    assert why == ("ended: timed out: the run's time budget (cycles x cell.cycle_timeout_s) "
+                   "ran out; 0 of 2 cycles verified, cycle 1 unfinished, 1 not started"), why
 
 
 # -- read once: the bytes parsed (and digested) are the bytes verified ---------------------------
@@ -363,3 +383,62 @@ def test_the_monitor_no_longer_taking_the_heartbeat_ends_the_trial(
     assert "the safety monitor stopped taking warden's heartbeat (EAGAIN)" in ended, ended
     assert summary["cycles"]["verified"] == 0
     assert summary["safety"]["failed"] > 0
+
+
+@pytest.mark.slow
+def test_the_walk_through_at_a_terminal_interrupted_in_cycle_2_of_3(
+        tmp_path: Path, emulator: EmulatedController) -> None:
+    """docs/operations.md 11's walk-through as written: no ``[operator] socket`` in the
+    manifest, no service running (so no /run/warden), the run's name typed at a terminal. The
+    trial serves its socket where the card says (it used to exit 2 once confirmed: it wanted
+    /run/warden), and Ctrl-C (SIGINT) in cycle 2 of 3 ends it non-zero with the unfinished
+    cycle counted (it used to exit 0, "1 of 1 cycles verified")."""
+    manifest = _ur_trial(tmp_path, emulator, trial=TRIAL.replace("max_cycles = 1",
+                                                                 "max_cycles = 3"))
+    text = manifest.read_text().replace("cycles = 1\nsimulated_operator",
+                                        "cycles = 3\nsimulated_operator", 1)
+    configured = f'\n[operator]\nsocket = "{tmp_path / "operator.sock"}"\n'
+    assert configured in text
+    manifest.write_text(text.replace(configured, "\n"))
+    sign(manifest, TEST_SIGNER)
+    monitor = Monitor(manifest, tmp_path)
+    terminal: _AtTerminal | None = None
+    try:
+        monitor.wait_watching()
+        terminal = _AtTerminal(manifest, tmp_path)
+        terminal.type("sim-ur5e-rtde\n")
+        process = terminal.process
+        sock = _card_socket(tmp_path, process)
+        wait_for(lambda: process.poll() is not None or _cycle(sock) >= 2,
+                 "cycle 2 under way", timeout_s=120)
+        process.send_signal(signal.SIGINT)
+        code, out, err = terminal.finish()
+        wait_for(lambda: _at_rest(emulator), "the arm at rest", timeout_s=5)
+    finally:
+        if terminal is not None:
+            terminal.close()
+        monitor.stop()
+    assert code == 1, err[-3000:]
+    trial = json.loads(out)["trial"]
+    assert trial["cycles"] == {"planned": 3, "finished": 1, "verified": 1, "unfinished": 1,
+                               "not_started": 1}, trial
+    assert trial["ended"].startswith("ended: interrupted (SIGINT or SIGTERM)"), trial
+    assert trial["ended"].endswith("1 of 3 cycles verified, cycle 2 unfinished, 1 not started")
+    assert trial["operator_socket"] == str(sock)
+    assert not sock.parent.exists()  # the directory the trial made for its socket is gone
+
+
+def _card_socket(tmp: Path, process: subprocess.Popen[str]) -> Path:
+    """The operator socket the card names (read from the trial's stderr as it comes)."""
+    assert process.stderr is not None
+    for line in process.stderr:
+        if line.startswith("stop: operator"):
+            return Path(line.split("--socket ", 1)[1].split(":", 1)[0])
+    raise AssertionError(f"no card: the trial exited {process.wait()}")
+
+
+def _cycle(sock: Path) -> int:
+    try:
+        return int(send(str(sock), "status", 2.0).get("cycle") or 0)
+    except (OSError, ValueError):
+        return 0  # not served yet (the device is still being brought up)
