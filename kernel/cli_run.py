@@ -35,6 +35,10 @@ def add_commands(commands: Any) -> None:
                      help="refuse a manifest not signed by a key in DIR; the signature is checked "
                           "in this process on the very bytes that then run (the systemd unit "
                           "passes /etc/warden/keys)")
+    run.add_argument("--await-confirmation", action="store_true",
+                     help="hold before anything starts (no device opened) until a member of the "
+                          "operator group runs `warden operator confirm`; the shipped unit "
+                          "passes it, so neither a boot nor a restart moves the arm")
     run.add_argument("--log-format", choices=("auto", "json", "console"), default="auto",
                      help="log lines on stderr: JSON (auto when stderr is not a terminal, e.g. "
                           "under systemd) or plain console lines")
@@ -57,6 +61,10 @@ def run_command(args: argparse.Namespace) -> int:
     configure_logging(args)
     manifest = checked_manifest(args.manifest, args.cycles, args.clock, args.keys)
     journal_dir = journal_directory(manifest, args.journal_dir, args.no_journal)
+    if args.await_confirmation:  # a held start (kernel/app/held.py): nothing moves before
+        from kernel.app.held import hold_until_confirmed
+
+        hold_until_confirmed(manifest)
     summary = asyncio.run(_run(manifest, journal_dir)) if manifest.cell.clock is (
         ClockKind.VIRTUAL) else run_wall(manifest, journal_dir)
     output(summary, args.json_out)

@@ -44,11 +44,11 @@ def trial_socket(manifest: Manifest) -> Iterator[tuple[Manifest, Path]]:
     made: Path | None = None
     path = socket_path(settings.socket)
     chosen = bool(settings.socket or os.environ.get("RUNTIME_DIRECTORY"))
-    if not chosen and _unusable(path) and path.parent == Path(DEFAULT_RUNTIME_DIRECTORY):
+    if not chosen and socket_problem(path) and path.parent == Path(DEFAULT_RUNTIME_DIRECTORY):
         made = _own_directory(gid)
         path = made / SOCKET_NAME
     try:
-        problem = _unusable(path)
+        problem = socket_problem(path)
         if problem:
             raise ManifestError(f"{where}.socket: cannot serve the operator socket at {path}: "
                                 f"{problem}")
@@ -68,8 +68,9 @@ def _own_directory(gid: int) -> Path:
     return made
 
 
-def _unusable(path: Path) -> str:
-    """Why the socket cannot be served at ``path``, or ""."""
+def socket_problem(path: Path) -> str:
+    """Why the operator socket cannot be served at ``path``, or "" (also for a held start,
+    kernel/app/held.py)."""
     directory = path.parent
     if not directory.is_dir():
         return f"{directory} is not a directory"
