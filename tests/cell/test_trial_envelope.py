@@ -349,7 +349,9 @@ def test_confirmed_at_the_terminal_the_trial_ends_when_its_duration_is_up(
         monitor.stop()
     assert code == 1, err[-3000:]
     summary = json.loads(out)  # stdout is the summary alone: the prompt went to stderr
-    assert summary["trial"]["ended"] == "ended: the trial's duration is up (1 s)"
+    assert summary["trial"]["ended"] == ("ended: the trial's duration is up (1 s); 0 of 1 "
+                                         "cycles verified, cycle 1 unfinished")
+    assert summary["trial"]["cycles"]["unfinished"] == 1  # the cycle it stopped is counted
     assert summary["trial"]["confirmed_by_uid"] == os.getuid()
     assert summary["cycles"]["verified"] == 0  # a cycle takes several seconds
     assert stops == 0  # warden ended it in order: the monitor had nothing to stop
