@@ -62,9 +62,13 @@ def run_command(args: argparse.Namespace) -> int:
     manifest = checked_manifest(args.manifest, args.cycles, args.clock, args.keys)
     journal_dir = journal_directory(manifest, args.journal_dir, args.no_journal)
     if args.await_confirmation:  # a held start (kernel/app/held.py): nothing moves before
-        from kernel.app.held import hold_until_confirmed
+        from kernel.app.held import HeldStopped, hold_until_confirmed
 
-        hold_until_confirmed(manifest)
+        try:
+            hold_until_confirmed(manifest)
+        except HeldStopped as stopped:
+            print(f"warden: {stopped}", file=sys.stderr)
+            return stopped.exit_code
     summary = asyncio.run(_run(manifest, journal_dir)) if manifest.cell.clock is (
         ClockKind.VIRTUAL) else run_wall(manifest, journal_dir)
     output(summary, args.json_out)

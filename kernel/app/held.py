@@ -41,12 +41,23 @@ FOREVER_S = 10 * 365 * 86_400.0
 """A held service waits for its operator as long as it runs."""
 
 
+class HeldStopped(Exception):
+    """SIGTERM (``systemctl stop``) or SIGINT while held: nothing was started or moved; the
+    process exits 128 + the signal's number (143, 130), as an interrupted run does."""
+
+    def __init__(self, signum: signal.Signals, run: str) -> None:
+        super().__init__(f"{run}: stopped while held by {signum.name}: nothing was started "
+                         "or moved")
+        self.exit_code = 128 + int(signum)
+
+
 def hold_until_confirmed(manifest: Manifest, timeout_s: float | None = None) -> int:
     """Hold until a member of the operator group confirms; the uid that did.
 
     Raises:
-        ManifestError: the operator socket cannot be served (nothing was started), or the
-            hold ended without a confirmation: its timeout, SIGTERM or SIGINT (nothing moved).
+        ManifestError: the operator socket cannot be served (nothing was started), or
+            nobody confirmed within ``timeout_s``.
+        HeldStopped: SIGTERM or SIGINT while held.
     """
     where = f"{manifest.path}: operator"
     group = manifest.operator.group or grp.getgrgid(os.getegid()).gr_name
@@ -74,20 +85,26 @@ async def _held(manifest: Manifest, path: Path, group: str, timeout_s: float,
     print(f"warden: {manifest.name}: {status}", file=sys.stderr, flush=True)
     path.unlink(missing_ok=True)  # nobody answers there (socket_problem): a run that died
     waiting = asyncio.ensure_future(await_confirmation(path, group, manifest.name, timeout_s))
-    while not (path.is_socket() or waiting.done()):  # ready once `warden operator` can reach it
-        await asyncio.sleep(0.01)
-    service.ready(status)
     loop = asyncio.get_running_loop()
+    received: list[signal.Signals] = []
+
+    def stop(signum: signal.Signals) -> None:
+        received.append(signum)
+        waiting.cancel()
+
     for signum in (signal.SIGTERM, signal.SIGINT):
-        loop.add_signal_handler(signum, waiting.cancel)
+        loop.add_signal_handler(signum, stop, signum)
     try:
+        # Ready once `warden operator` can reach the socket (the hold's only way out).
+        while not (path.is_socket() or waiting.done()):
+            await asyncio.sleep(0.01)
+        service.ready(status)
         while not waiting.done():
             service.alive()  # rate-limited to half the watchdog's interval
             await asyncio.wait({waiting}, timeout=0.25)
         caller = waiting.result()
     except asyncio.CancelledError:
-        raise ManifestError(f"{manifest.path}: not confirmed: stopped while held (nothing "
-                            "moved)") from None
+        raise HeldStopped(received[0] if received else signal.SIGTERM, manifest.name) from None
     except TimeoutError:
         raise ManifestError(f"{manifest.path}: not confirmed within {timeout_s:g} s (nothing "
                             "moved)") from None

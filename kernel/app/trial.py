@@ -183,9 +183,16 @@ def verdict(summary: dict[str, Any], bound: TrialBound, planned: int) -> tuple[i
 
 def cycle_count(summary: dict[str, Any], planned: int) -> dict[str, int]:
     """Of the ``planned`` cycles: how many finished, verified, were under way when the run
-    ended (at most one: cycles run one after another), and never started."""
-    finished = len(summary["cycles"]["detail"])
-    under_way = int(finished < planned and summary.get("ticks", 0) > 0)
+    ended (at most one: cycles run one after another), and never started. A run that lists
+    the cycle it cut short among its cycles says which (``cycle_cut_short``); otherwise the
+    cycles listed are the finished ones, and one was under way if the loop ticked at all."""
+    listed = len(summary["cycles"]["detail"])
+    if "cycle_cut_short" in summary:
+        under_way = int(summary["cycle_cut_short"] is not None)
+        finished = listed - under_way
+    else:
+        finished = listed
+        under_way = int(finished < planned and summary.get("ticks", 0) > 0)
     return {"planned": planned, "finished": finished,
             "verified": summary["cycles"]["verified"], "unfinished": under_way,
             "not_started": planned - finished - under_way}
@@ -196,7 +203,8 @@ def _ended_early(summary: dict[str, Any]) -> str:
     policy link that failed and was restarted is in ``task_failures`` too, but did not end
     the run: this is asked only when cycles are missing)."""
     if summary.get("stopped"):
-        return "interrupted (SIGINT or SIGTERM): the arm was held and the device closed"
+        signal_name = summary.get("interrupted") or "SIGINT or SIGTERM"
+        return f"interrupted ({signal_name}): the arm was held and the device closed"
     if (summary.get("journal") or {}).get("error"):
         return "the run's record could not be written"
     if summary.get("task_failures"):

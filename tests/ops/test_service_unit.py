@@ -172,3 +172,39 @@ def _datagram(receiver: Any, process: subprocess.Popen[str], tries: int = 30) ->
         if not data.startswith(b"STATUS="):
             return data
     raise AssertionError("no notification")
+
+
+def test_stopped_while_held_nothing_starts(tmp_path: Path) -> None:
+    """`systemctl stop` (SIGTERM) while the unit holds: exit 143, said on stderr, no run
+    directory; the device (an address nothing listens on) is never contacted."""
+    from kernel.signing import sign
+    from tests.cell.test_trial import TEST_KEYS, TEST_SIGNER
+    from tests.ops.test_sd_notify import Receiver
+    from tests.safety.support import ur_manifest
+
+    runtime = tmp_path / "run"
+    runtime.mkdir()
+    receiver = Receiver(str(tmp_path / "notify.sock"))
+    manifest = ur_manifest(tmp_path, "127.0.0.1")
+    manifest.write_text(manifest.read_text().replace(
+        f'socket = "{tmp_path / "operator.sock"}"\n', ""))
+    sign(manifest, TEST_SIGNER)
+    command = _one("ExecStart").replace(VENV_WARDEN, str(Path(sys.executable).with_name(
+        "warden"))).replace("/etc/warden/cell.toml", str(manifest)).replace(
+        "/etc/warden/keys", str(TEST_KEYS))
+    env = {**os.environ, "NOTIFY_SOCKET": str(tmp_path / "notify.sock"),
+           "RUNTIME_DIRECTORY": str(runtime)}
+    process = subprocess.Popen(shlex.split(command), cwd=tmp_path, env=env,
+                               stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    try:
+        assert _datagram(receiver, process).startswith(b"READY=1\nSTATUS=held")
+        process.terminate()
+        _, err = process.communicate(timeout=60)
+    finally:
+        if process.poll() is None:
+            process.kill()
+        receiver.sock.close()
+    assert process.returncode == 143, err[-2000:]
+    assert "stopped while held by SIGTERM: nothing was started or moved" in err
+    assert "Traceback" not in err
+    assert not list(tmp_path.glob("runs/*")) and not (runtime / "operator.sock").exists()
