@@ -36,6 +36,10 @@ def add_commands(commands: Any) -> None:
                      help="refuse a manifest not signed by a key in DIR; the signature is checked "
                           "in this process on the very bytes that then run (the systemd unit "
                           "passes /etc/warden/keys)")
+    run.add_argument("--await-confirmation", action="store_true",
+                     help="hold before anything starts (no device opened) until a member of the "
+                          "operator group runs `warden operator confirm`; the shipped unit "
+                          "passes it, so neither a boot nor a restart moves the arm")
     run.add_argument("--log-format", choices=("auto", "json", "console"), default="auto",
                      help="log lines on stderr: JSON (auto when stderr is not a terminal, e.g. "
                           "under systemd) or plain console lines")
@@ -72,8 +76,17 @@ def run_command(args: argparse.Namespace) -> int:
     journal_dir = journal_directory(manifest, args.journal_dir, args.no_journal)
     from kernel.shell.device_lock import holding
 
-    # One warden per device: before any connection, emulator or real-time priority.
+    # One warden per device: before any connection, emulator or real-time priority, and before
+    # a held start waits (a second service on the same device is refused at once).
     with holding(manifest, "warden run"):
+        if args.await_confirmation:  # a held start (kernel/app/held.py): nothing moves before
+            from kernel.app.held import HeldStopped, hold_until_confirmed
+
+            try:
+                hold_until_confirmed(manifest)
+            except HeldStopped as stopped:
+                print(f"warden: {stopped}", file=sys.stderr)
+                return stopped.exit_code
         summary = asyncio.run(_run(manifest, journal_dir, structured)) if manifest.cell.clock is (
             ClockKind.VIRTUAL) else run_wall(manifest, journal_dir, structured=structured)
     output(summary, args.json_out, structured)

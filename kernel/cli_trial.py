@@ -1,9 +1,15 @@
 """``warden trial MANIFEST``: a bounded trial (kernel/app/trial.py says what that takes).
 
-Exit codes: 0 every cycle verified inside the envelope; 1 the trial ended on a bound (the
-envelope, its duration, the safety monitor gone) or a cycle did not verify; 2 it did not
-start: a signature that does not verify, no envelope, no watchdog, no safety monitor, nobody
-confirmed (the message names what is wrong; nothing moved).
+Every check that can refuse the trial runs before the card is shown and a human is asked:
+the signature and the envelope (and the envelope against the arm's reach and the monitor's
+limits), the checks of ``warden run``, the journal directory, the operator socket, the live
+safety monitor. A confirmation is never followed by "cannot start" for anything checked here.
+
+Exit codes: 0 every planned cycle ran and verified inside the envelope; 1 the trial ended
+early (a bound: the envelope, its duration, the safety monitor gone; a signal; the run's time
+budget) or a cycle did not verify, the unfinished cycle counted; 2 it did not start: a
+signature that does not verify, no envelope or one that bounds nothing, no watchdog, no safety
+monitor, no operator socket, nobody confirmed (the message names what is wrong; nothing moved).
 """
 
 from __future__ import annotations
@@ -18,7 +24,16 @@ from typing import Any
 
 import structlog
 
-from kernel.app.trial import TrialBound, load_trial, safety_watching, trial_card, verdict
+from kernel.app.trial import (
+    TrialBound,
+    check_device_settings,
+    cycle_count,
+    load_trial,
+    safety_watching,
+    verdict,
+)
+from kernel.app.trial_card import trial_card
+from kernel.app.trial_socket import trial_socket
 from kernel.cli_run import (
     EXIT_RECORD_FAILED,
     configure_logging,
@@ -30,7 +45,7 @@ from kernel.cli_run import (
 )
 from kernel.manifest import Manifest, ManifestError
 from kernel.shell.device_lock import holding
-from kernel.shell.operator import await_confirmation, socket_path
+from kernel.shell.operator import await_confirmation
 from kernel.signing import DEFAULT_KEYS_DIR
 
 log = structlog.get_logger("warden.trial")
@@ -48,6 +63,9 @@ def add_commands(commands: Any) -> None:
     trial.add_argument("--journal-dir", help="where run directories go (default: the manifest's)")
     trial.add_argument("--confirm-timeout", type=float, default=300.0,
                        help="seconds to wait for `warden operator confirm` (no terminal)")
+    trial.add_argument("--full-speed", action="store_true",
+                       help="accept speed_scale = 1 (the manifest's own velocity limits, not "
+                            "reduced); logged, and on the card and in the summary")
     trial.add_argument("--json", dest="json_out", metavar="FILE",
                        help="also write the summary as JSON to FILE ('-' for stdout)")
     trial.add_argument("--log-format", choices=("auto", "json", "console"), default="auto")
@@ -56,29 +74,33 @@ def add_commands(commands: Any) -> None:
 
 
 def trial_command(args: argparse.Namespace) -> int:
-    configure_logging(args)
+    structured = configure_logging(args)
     if not 0 < args.confirm_timeout <= 86_400:
         raise ManifestError("--confirm-timeout: must be more than 0 and at most a day")
-    manifest = load_trial(Path(args.manifest), Path(args.keys))
+    manifest = load_trial(Path(args.manifest), Path(args.keys), args.full_speed)
     preflight(manifest)
+    check_device_settings(manifest)
     journal = journal_directory(manifest, args.journal_dir)
     # One warden per device, taken before the card asks anyone to confirm a trial that could
     # not start anyway.
     with holding(manifest, "warden trial"):
-        return _trial(manifest, journal, args)
+        return _trial(manifest, journal, args, structured)
 
 
-def _trial(manifest: Manifest, journal: Path | None, args: argparse.Namespace) -> int:
-    safety = safety_watching(manifest)
-    socket = socket_path(manifest.operator.socket)
-    print(trial_card(manifest, socket, safety, journal), file=sys.stderr)
-    confirmed_by = _confirmed(manifest, socket, args.confirm_timeout)
-    bound = TrialBound(manifest.trial.max_duration_s if manifest.trial else 0.0)
-    summary = run_wall(manifest, journal, bound)
-    code, why = verdict(summary, bound)
-    summary["trial"] = {"ended": why, "signer": manifest.signer, "digest": manifest.digest,
-                        "confirmed_by_uid": confirmed_by}
-    output(summary, args.json_out)
+def _trial(manifest: Manifest, journal: Path | None, args: argparse.Namespace,
+           structured: bool) -> int:
+    with trial_socket(manifest) as (manifest, socket):
+        safety = safety_watching(manifest)  # last: the monitor's answer is the freshest
+        print(trial_card(manifest, socket, safety, journal), file=sys.stderr)
+        confirmed_by = _confirmed(manifest, socket, args.confirm_timeout)
+        bound = TrialBound(manifest.trial.max_duration_s if manifest.trial else 0.0)
+        summary = run_wall(manifest, journal, bound, structured=structured)
+    code, why = verdict(summary, bound, manifest.cell.cycles)
+    summary["trial"] = {"ended": why, "cycles": cycle_count(summary, manifest.cell.cycles),
+                        "signer": manifest.signer, "digest": manifest.digest,
+                        "confirmed_by_uid": confirmed_by, "full_speed": args.full_speed,
+                        "operator_socket": str(socket)}
+    output(summary, args.json_out, structured)
     print(f"warden: trial {manifest.name}: {why}", file=sys.stderr)
     return EXIT_RECORD_FAILED if report_record_failure(summary) else code
 
@@ -108,6 +130,9 @@ def _confirmed(manifest: Manifest, socket: Path, timeout_s: float) -> int:
           file=sys.stderr)
     try:
         caller = asyncio.run(await_confirmation(socket, group, manifest.name, timeout_s))
+    except KeyboardInterrupt:  # Ctrl-C while waiting: not confirmed, not a traceback
+        raise ManifestError(f"{manifest.path}: trial: not confirmed (interrupted while "
+                            "waiting)") from None
     except TimeoutError:
         raise ManifestError(f"{manifest.path}: trial: nobody confirmed within {timeout_s:g} s "
                             f"(warden operator confirm --socket {socket})") from None

@@ -252,3 +252,12 @@ def device_watchdog(table: Mapping[str, Any]) -> str | None:
         return None
     return (f"every drive's heartbeat consumer: no heartbeat from warden for {timeout_ms} ms and "
             "the joints quick-stop (0x6007)")
+
+
+def device_watchdog_ms(table: Mapping[str, Any], control_period_ms: float) -> float | None:
+    """How long after warden's last heartbeat :func:`device_watchdog` stops the joints, in ms;
+    None: off."""
+    timeout_ms = configured(CiA402Settings, table, "watchdog_ms")
+    if not isinstance(timeout_ms, int) or timeout_ms <= 0:
+        return None
+    return float(timeout_ms)

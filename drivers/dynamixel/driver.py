@@ -68,6 +68,8 @@ class DynamixelDriver:
     """What stops the arm when warden's commands stop, per manifest table (None: off)."""
     device_identity = staticmethod(settings_module.device_identity)
     """The device a manifest table addresses (one warden per device: kernel/shell/device_lock)."""
+    device_watchdog_ms = staticmethod(settings_module.device_watchdog_ms)
+    """...and how long after warden's last command it does, in ms."""
 
     def __init__(self, settings: DynamixelSettings, name: str = "dynamixel") -> None:
         self.name = name

@@ -189,3 +189,12 @@ def device_watchdog(table: Mapping[str, Any]) -> str | None:
         return None
     return (f"every servo's Bus Watchdog: no instruction packet for {periods} control periods "
             "and it stops")
+
+
+def device_watchdog_ms(table: Mapping[str, Any], control_period_ms: float) -> float | None:
+    """How long after warden's last command :func:`device_watchdog` stops the arm, in ms;
+    None: off."""
+    periods = configured(DynamixelSettings, table, "watchdog_periods")
+    if not isinstance(periods, int) or periods <= 0:
+        return None
+    return periods * control_period_ms

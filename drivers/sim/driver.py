@@ -42,11 +42,16 @@ def _in_process_plant(table: Mapping[str, Any]) -> str:
     return "none needed: the simulated plant runs in warden's process and stops with it"
 
 
+def _stops_with_warden(table: Mapping[str, Any], control_period_ms: float) -> float:
+    return 0.0
+
+
 class SimDriver:
     capabilities = frozenset({CommandKind.POSITION, CommandKind.VELOCITY, CommandKind.HOLD,
                               CommandKind.STOP, CommandKind.IMPEDANCE})
     device_watchdog = staticmethod(_in_process_plant)
     """What stops the arm when warden's commands stop (simulation: warden itself)."""
+    device_watchdog_ms = staticmethod(_stops_with_warden)
 
     def __init__(
         self, plant: SimulatedPlant, name: str = "sim", lock: threading.Lock | None = None,

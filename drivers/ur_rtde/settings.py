@@ -174,3 +174,12 @@ def device_watchdog(table: Mapping[str, Any]) -> str | None:
         return None
     return (f"the controller's RTDE watchdog: no setpoint for {periods} control periods and the "
             "control script stops")
+
+
+def device_watchdog_ms(table: Mapping[str, Any], control_period_ms: float) -> float | None:
+    """How long after warden's last command :func:`device_watchdog` stops the arm, in ms;
+    None: off."""
+    periods = configured(URSettings, table, "watchdog_periods")
+    if not isinstance(periods, int) or periods <= 0:
+        return None
+    return periods * control_period_ms

@@ -99,6 +99,8 @@ def render_summary(summary: dict[str, Any], console: Console | None = None) -> N
 def _rows(s: dict[str, Any]) -> list[tuple[str, str]]:
     rows = [("cycles attempted / verified", f"{s['cycles']['attempted']} / "
              f"{s['cycles']['verified']}")]
+    if s.get("trial"):  # why a trial ended, its unfinished cycle counted (kernel/app/trial.py)
+        rows.append(("trial", s["trial"]["ended"]))
     for cycle in s["cycles"]["detail"]:
         verdict = "verified" if cycle["verified"] else f"failed: {cycle['reason']}"
         rows.append((f"  cycle {cycle['index']}", f"{verdict}, depth "

@@ -27,7 +27,9 @@ from typing import Any
 from assurance.reasons import ReasonCode
 from drivers import registry
 from kernel import signing
+from kernel.app.device import driver_from_manifest
 from kernel.app.session import RunContext
+from kernel.app.trial_limits import check_envelope
 from kernel.manifest import Manifest, ManifestError, TrialEnvelope, load_manifest
 from kernel.robot_model import digest
 from kernel.safety.status import ask
@@ -39,14 +41,15 @@ ENVELOPE_KEYS = ("max_cycles", "max_duration_s", "workspace_lower", "workspace_u
                  "speed_scale", "max_wrist_force_n")
 
 
-def load_trial(path: Path, keys: Path) -> Manifest:
+def load_trial(path: Path, keys: Path, full_speed: bool = False) -> Manifest:
     """The manifest of a trial: verified, parsed from the verified bytes, with the envelope
     folded into what the core enforces (scaled velocity limits, the ``envelope`` section) and
-    its cycles capped.
+    its cycles capped. ``full_speed``: a ``speed_scale`` of 1 is accepted (and logged).
 
     Raises:
         ManifestError: not signed by a trusted key, altered, no envelope, no watchdog, a
-            simulated operator (the message names the file and what is wrong).
+            simulated operator, an envelope wider than the arm's reach or the monitor's force
+            limit, or one that reduces no speed (the message names the file and what is wrong).
     """
     try:
         verified = signing.verify(path, keys)
@@ -61,12 +64,14 @@ def load_trial(path: Path, keys: Path) -> Manifest:
     if manifest.core.state_timeout_ns is None:
         raise ManifestError(f"{path}: timing.state_timeout_ms: missing: a trial needs the "
                             "state watchdog")
-    _device_watchdog(manifest)
+    device_watchdog(manifest)
     _signed_model(manifest)
     if manifest.cell.simulated_operator:
         raise ManifestError(f"{path}: cell.simulated_operator: must be false in a trial (only a "
                             "human accepts recovery)")
-    return _bounded(manifest, envelope)
+    bounded = _bounded(manifest, envelope)
+    check_envelope(bounded, envelope, full_speed)
+    return bounded
 
 
 def _signed_model(manifest: Manifest) -> None:
@@ -90,7 +95,18 @@ def _signed_model(manifest: Manifest) -> None:
                             f'model_sha256 = "{sha256}" to [robot] and sign again')
 
 
-def _device_watchdog(manifest: Manifest) -> str:
+def check_device_settings(manifest: Manifest) -> None:
+    """A real device's driver settings, parsed as the run will (nothing is opened), so that
+    a bad one is refused before anyone confirms.
+
+    Raises:
+        ManifestError: naming the ``[driver]`` key.
+    """
+    if manifest.driver_name != "sim" and not manifest.emulator.launch:
+        driver_from_manifest(manifest, manifest.driver_settings)
+
+
+def device_watchdog(manifest: Manifest) -> str:
     """What stops the arm if warden dies, as the driver's settings configure it.
 
     Raises:
@@ -113,7 +129,7 @@ def _device_watchdog(manifest: Manifest) -> str:
 def _bounded(manifest: Manifest, envelope: TrialEnvelope) -> Manifest:
     robot = dict(manifest.sections["robot"])
     robot["velocity_limits"] = [round(v * envelope.speed_scale, 12) for v in
-                                _arm_velocities(manifest)]
+                                arm_velocities(manifest)]
     sections = {**manifest.sections, "robot": robot, "envelope": {
         "workspace": {"lower": list(envelope.workspace_lower),
                       "upper": list(envelope.workspace_upper)},
@@ -127,37 +143,9 @@ def _bounded(manifest: Manifest, envelope: TrialEnvelope) -> Manifest:
     return dataclasses.replace(manifest, core=core, sections=sections, cell=cell)
 
 
-def _arm_velocities(manifest: Manifest) -> list[float]:
+def arm_velocities(manifest: Manifest) -> list[float]:
     limits = manifest.core.limits
     return [float(v) for v, arm in zip(limits.velocity, limits.arm_mask, strict=True) if arm]
-
-
-def trial_card(manifest: Manifest, socket: Path, safety: str, journal: Path | None) -> str:
-    """What is bounded, who can stop it and how, where the journal is: shown before a human
-    confirms."""
-    envelope = manifest.trial
-    if envelope is None:  # load_trial refuses such a manifest
-        raise ManifestError(f"{manifest.path}: trial: missing")
-    limits = _arm_velocities(manifest)
-    rows = [
-        ("trial", f"{manifest.name} ({manifest.path}, sha256 {manifest.digest[:16]}, signed "
-                  f"by key {manifest.signer})"),
-        ("cycles", f"at most {manifest.cell.cycles}"),
-        ("duration", f"at most {envelope.max_duration_s:g} s"),
-        ("joint speed", f"x{envelope.speed_scale:g}: at most "
-                        f"{', '.join(f'{v:.3g}' for v in limits)} rad/s"),
-        ("tool workspace", f"{list(envelope.workspace_lower)} to "
-                           f"{list(envelope.workspace_upper)} m (base frame): a setpoint "
-                           "outside is never sent, a measured breach stops the arm"),
-        ("wrist force", f"at most {envelope.max_wrist_force_n:g} N, or the arm stops"),
-        ("stop: a person", "the E-stop wired to the arm's safety system (hold it)"),
-        ("stop: operator", f"warden operator stop|takeover --socket {socket}"),
-        ("stop: safety monitor", safety),
-        ("stop: the device", _device_watchdog(manifest)),
-        ("journal", str(journal) if journal is not None else "none (--no-journal)"),
-    ]
-    width = max(len(name) for name, _ in rows)
-    return "\n".join(f"{name:<{width}}  {text}" for name, text in rows)
 
 
 @dataclass
@@ -179,14 +167,53 @@ class TrialBound:
         return bool(self.reason)
 
 
-def verdict(summary: dict[str, Any], bound: TrialBound) -> tuple[int, str]:
-    """The trial's exit code and why: 0 every cycle verified within its bounds, 1 otherwise."""
-    cycles = summary["cycles"]
-    if bound.reason:
-        return 1, f"ended: {bound.reason}"
-    if cycles["attempted"] and cycles["verified"] == cycles["attempted"]:
-        return 0, f"ended: {cycles['verified']} of {cycles['attempted']} cycles verified"
-    return 1, f"ended: {cycles['verified']} of {cycles['attempted']} cycles verified"
+def verdict(summary: dict[str, Any], bound: TrialBound, planned: int) -> tuple[int, str]:
+    """The trial's exit code and why: 0 only when all ``planned`` cycles ran and verified and
+    nothing ended the trial early, 1 otherwise. A cycle under way when the trial ended (a
+    bound, a signal, the run's time budget, a failed task) is counted as unfinished: the
+    summary's ``cycles`` lists finished cycles only, so ``summary["trial"]["cycles"]`` (see
+    :func:`cycle_count`) says what happened to each of the ``planned``."""
+    counts = cycle_count(summary, planned)
+    early = bound.reason or (_ended_early(summary) if counts["finished"] < planned else "")
+    tally = (f"{counts['verified']} of {planned} cycles verified"
+             + (f", cycle {counts['finished'] + 1} unfinished" if counts["unfinished"] else "")
+             + (f", {counts['not_started']} not started" if counts["not_started"] else ""))
+    if early:
+        return 1, f"ended: {early}; {tally}"
+    return (0 if counts["verified"] == planned else 1), f"ended: {tally}"
+
+
+def cycle_count(summary: dict[str, Any], planned: int) -> dict[str, int]:
+    """Of the ``planned`` cycles: how many finished, verified, were under way when the run
+    ended (at most one: cycles run one after another), and never started. A run that lists
+    the cycle it cut short among its cycles says which (``cycle_cut_short``); otherwise the
+    cycles listed are the finished ones, and one was under way if the loop ticked at all."""
+    listed = len(summary["cycles"]["detail"])
+    if "cycle_cut_short" in summary:
+        under_way = int(summary["cycle_cut_short"] is not None)
+        finished = listed - under_way
+    else:
+        finished = listed
+        under_way = int(finished < planned and summary.get("ticks", 0) > 0)
+    return {"planned": planned, "finished": finished,
+            "verified": summary["cycles"]["verified"], "unfinished": under_way,
+            "not_started": planned - finished - under_way}
+
+
+def _ended_early(summary: dict[str, Any]) -> str:
+    """Why the run ended before its cycles were done, as the live run's summary says (a
+    policy link that failed and was restarted is in ``task_failures`` too, but did not end
+    the run: this is asked only when cycles are missing)."""
+    if summary.get("stopped"):
+        signal_name = summary.get("interrupted") or "SIGINT or SIGTERM"
+        return f"interrupted ({signal_name}): the arm was held and the device closed"
+    if (summary.get("journal") or {}).get("error"):
+        return "the run's record could not be written"
+    if summary.get("task_failures"):
+        return f"a task failed ({'; '.join(summary['task_failures'])})"
+    if summary.get("timed_out"):
+        return "timed out: the run's time budget (cycles x cell.cycle_timeout_s) ran out"
+    return ""
 
 
 def safety_watching(manifest: Manifest, timeout_s: float = 2.0) -> str:

@@ -131,8 +131,21 @@ class ServiceNotifier:
         return cls(notify_address(env), watchdog_interval_s(env), clock)
 
     def ready(self, status: str) -> bool:
-        """Start-up is complete (systemd arms the watchdog from here)."""
-        return self._send(READY=1, STATUS=_short(status))
+        """Start-up is complete (systemd arms the watchdog from here). With a watchdog, the
+        datagram restates its timeout (``WATCHDOG_USEC``): a held start lengthens it for the
+        bring-up after an operator's confirmation (:meth:`extend_watchdog`), and the loop's
+        readiness puts the unit's own back."""
+        if self.watchdog_s is None:
+            return self._send(READY=1, STATUS=_short(status))
+        return self._send(READY=1, STATUS=_short(status),
+                          WATCHDOG_USEC=round(self.watchdog_s * 1e6))
+
+    def extend_watchdog(self, seconds: float) -> bool:
+        """Let ``seconds`` pass without a ping (a bring-up with no loop yet to ping); the next
+        :meth:`ready` restores the unit's timeout. Nothing is sent without a watchdog."""
+        if self.watchdog_s is None:
+            return False
+        return self._send(WATCHDOG_USEC=round(seconds * 1e6))
 
     def status(self, text: str) -> bool:
         return self._send(STATUS=_short(text))

@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 import threading
 
+from stubs import robot_model as rm
 from stubs.plant.base import Plant
 
 DECELERATION_RAD_S2 = 10.0
@@ -27,7 +28,13 @@ class ProgramStop:
         self.done = threading.Event()
         """Set once the arm is at rest and the program has ended (the dashboard answers then)."""
         self._step = deceleration * cycle_s
-        self._velocity = [v for v in plant.state().qd]
+        # A measured speed can exceed, for an instant, what a joint may be commanded (a
+        # contact, a servo's overshoot: 3.4 rad/s seen at the elbow when a trial was stopped
+        # mid-motion); the ramp starts from at most the joint's limit, as a drive's would,
+        # instead of the plant refusing the command and the controller's cycle dying.
+        self._velocity = [math.copysign(min(abs(v), limit), v)
+                          for v, limit in zip(plant.state().qd, rm.JOINT_VELOCITY_LIMIT,
+                                              strict=True)]
 
     def step(self) -> bool:
         """One cycle of deceleration; True (and the plant holds) once every joint is at rest."""

@@ -17,6 +17,7 @@ import subprocess
 import sys
 from collections.abc import Iterator
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import pytest
@@ -160,7 +161,7 @@ def test_a_simulated_operator_is_refused(tmp_path: Path) -> None:
 
 # -- against a running safety monitor: the UR cell on an emulator the test starts -------------
 
-def _ur_trial(tmp: Path, emulator: EmulatedController, trial: str = TRIAL,
+def _ur_trial(tmp: Path, emulator: EmulatedController | SimpleNamespace, trial: str = TRIAL,
               name: str = "trial-cell.toml", watchdog: int = 25) -> Path:
     """The emulated UR cell as a trial (its monitor's sockets in ``tmp``, the controller's
     RTDE watchdog on), signed."""

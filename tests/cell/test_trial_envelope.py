@@ -33,7 +33,8 @@ from kernel import provenance
 from kernel.app import trial as trial_module
 from kernel.app.lockstep import run_lockstep
 from kernel.app.session import control_config
-from kernel.app.trial import load_trial, trial_card
+from kernel.app.trial import load_trial
+from kernel.app.trial_card import trial_card
 from kernel.cli_operator import send
 from kernel.cli_trial import _confirmed
 from kernel.core.runtime import Core
@@ -54,7 +55,7 @@ from tests.cell.test_trial import (
     trial_manifest,
     watched_trial,
 )
-from tests.safety.support import Monitor, wait_for
+from tests.safety.support import Monitor, safety_table, wait_for
 
 SHIPPED_VELOCITY = 3.1416
 """Every joint's velocity limit in the shipped sim-ur5e manifests."""
@@ -62,16 +63,18 @@ AT_REST_RAD_S = 0.01
 RUNTIME_STOPPED = 1
 
 
-def _signed_sim_trial(tmp: Path, cycles: int = 1, **envelope: Any) -> Path:
-    """The in-process sim-ur5e cell as a signed trial of ``cycles`` cycles, ``envelope``
-    replacing [trial] keys."""
+def _signed_sim_trial(tmp: Path, cycles: int = 1, cycle_timeout_s: float = 30.0,
+                      **envelope: Any) -> Path:
+    """The in-process sim-ur5e cell as a signed trial of ``cycles`` cycles (each within
+    ``cycle_timeout_s``), with a safety monitor's table, ``envelope`` replacing [trial] keys."""
     trial = TRIAL
     for key, value in envelope.items():
         old = next(line for line in trial.splitlines() if line.startswith(f"{key} = "))
         trial = trial.replace(old, f"{key} = {value}")
-    manifest = trial_manifest(tmp, trial=trial)
+    manifest = trial_manifest(tmp, trial=trial, extra=safety_table(tmp))
     manifest.write_text(manifest.read_text().replace(
-        "cycles = 1\nsimulated_operator", f"cycles = {cycles}\nsimulated_operator", 1))
+        "cycles = 1\nsimulated_operator", f"cycles = {cycles}\nsimulated_operator", 1).replace(
+        "cycle_timeout_s = 30.0", f"cycle_timeout_s = {cycle_timeout_s}", 1))
     sign(manifest, TEST_SIGNER)
     return manifest
 
@@ -113,10 +116,13 @@ def test_speed_scale_scales_the_limits_the_core_and_the_driver_use(tmp_path: Pat
 def test_max_cycles_caps_the_cells_cycles(tmp_path: Path) -> None:
     path = _signed_sim_trial(tmp_path, cycles=3, max_cycles=2, speed_scale=1.0)
     assert load_manifest(path).cell.cycles == 3  # the cell alone would run three
-    manifest = load_trial(path, TEST_KEYS)
+    with pytest.raises(ManifestError, match=r"trial.speed_scale: 1 reduces nothing"):
+        load_trial(path, TEST_KEYS)  # the manifest's own speeds: only with --full-speed
+    manifest = load_trial(path, TEST_KEYS, full_speed=True)
     assert manifest.cell.cycles == 2
     card = trial_card(manifest, tmp_path / "operator.sock", "monitor", tmp_path / "runs")
     assert "at most 2" in card.splitlines()[1]
+    assert "NOT reduced" in card.splitlines()[3], card
     summary, _ = _lockstep(manifest, tmp_path / "runs")
     assert summary["cycles"]["attempted"] == 2 and summary["cycles"]["verified"] == 2
 
@@ -329,7 +335,9 @@ def test_confirmed_at_the_terminal_the_trial_ends_when_its_duration_is_up(
         monitor.stop()
     assert code == 1, err[-3000:]
     summary = json.loads(out)  # stdout is the summary alone: the prompt went to stderr
-    assert summary["trial"]["ended"] == "ended: the trial's duration is up (1 s)"
+    assert summary["trial"]["ended"] == ("ended: the trial's duration is up (1 s); 0 of 1 "
+                                         "cycles verified, cycle 1 unfinished")
+    assert summary["trial"]["cycles"]["unfinished"] == 1  # the cycle it stopped is counted
     assert summary["trial"]["confirmed_by_uid"] == os.getuid()
     assert summary["cycles"]["verified"] == 0  # a cycle takes several seconds
     assert stops == 0  # warden ended it in order: the monitor had nothing to stop

@@ -118,3 +118,24 @@ def test_a_client_that_stops_reading_holds_back_no_other(emulator: EmulatedContr
     finally:
         child.kill()
         child.wait()
+
+
+def test_a_stop_from_a_measured_speed_above_the_joint_limit_still_brings_the_arm_to_rest(
+        ) -> None:
+    """A trial stopped mid-motion measured 3.4 rad/s at the elbow (limit pi) for an instant:
+    the stop's first velocity command was refused by the plant and the controller's cycle
+    died, leaving the arm moving. The ramp now starts from the joint's limit."""
+    from stubs.plant._cell_index import CellIndex
+    from stubs.plant.mujoco_plant import MujocoPlant
+    from stubs.ur_controller.program_stop import ProgramStop
+
+    plant = MujocoPlant()
+    arm = CellIndex.of(plant.model).arm_dof
+    plant.data.qvel[arm] = [0.0, 0.0, 3.4, 0.0, 0.0, 0.0]
+    assert plant.state().qd[2] == 3.4
+    stop = ProgramStop(plant, 0.002)
+    for _ in range(1000):  # pi / 10 rad/s^2: 0.31 s of 2 ms cycles, with room
+        if stop.step():
+            break
+        plant.step()
+    assert stop.done.is_set()
