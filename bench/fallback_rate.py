@@ -178,7 +178,7 @@ def main() -> None:
             result = run_inner(root, manifest, args.window)
             for state, s in result["states"].items():
                 ticks = s["ticks"]
-                rate = 100.0 * s["misses"] / (ticks + s["misses"]) if ticks else float("nan")
+                rate = 100.0 * s["misses"] / ticks if ticks else float("nan")
                 p99 = s["p99_us"] if s["p99_us"] is not None else float("nan")
                 print(f"{manifest:<20} {str(root)[-22:]:<22} {state:<16} {ticks:>6} "
                       f"{rate:>6.2f}% {p99:>7.0f} {s['max_gap_ms']:>10.1f}")
