@@ -17,7 +17,8 @@ operator socket and the device would feed the core:
   refused command): STOP every tick with the driver still up.
 
 Printed per driver and state: ticks, deadline misses (a tick later than half a period, or a
-period skipped, as ``warden run`` counts them) as a percentage of the periods, p99 lateness,
+period skipped, as ``warden run`` counts them) as a share of the periods (ticks plus misses:
+a skipped period is a miss without a tick), p99 lateness,
 and the longest gap between two ticks (a gap past the unit's ``WatchdogSec`` would have had
 systemd kill the process). Figures are printed, never asserted: the machine is shared.
 """
@@ -130,7 +131,10 @@ def inner(manifest_name: str, window_s: float) -> None:
                                cycle_timeout_s=600.0)
     walk = Walk(window_s, types.SimpleNamespace(**vars(events), ReasonCode=ReasonCode))
     with tempfile.TemporaryDirectory() as journals:
-        summary = run_wall(dataclasses.replace(loaded, cell=cell), Path(journals), walk)
+        # Its own operator socket: a warden elsewhere on the machine may serve the default one.
+        operator = dataclasses.replace(loaded.operator, socket=f"{journals}/operator.sock")
+        summary = run_wall(dataclasses.replace(loaded, cell=cell, operator=operator),
+                           Path(journals), walk)
     result = {}
     for state, stats in walk.stats.items():
         lateness = sorted(stats.pop("lateness_us"))
@@ -178,7 +182,8 @@ def main() -> None:
             result = run_inner(root, manifest, args.window)
             for state, s in result["states"].items():
                 ticks = s["ticks"]
-                rate = 100.0 * s["misses"] / ticks if ticks else float("nan")
+                periods = ticks + s["misses"]  # a skipped period is a miss without a tick
+                rate = 100.0 * s["misses"] / periods if ticks else float("nan")
                 p99 = s["p99_us"] if s["p99_us"] is not None else float("nan")
                 print(f"{manifest:<20} {str(root)[-22:]:<22} {state:<16} {ticks:>6} "
                       f"{rate:>6.2f}% {p99:>7.0f} {s['max_gap_ms']:>10.1f}")

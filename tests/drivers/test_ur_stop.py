@@ -16,7 +16,8 @@ from typing import Any
 
 import pytest
 
-from drivers.base import Command, CommandKind, ControlConfig, DriverState
+from assurance.reasons import ReasonCode
+from drivers.base import Command, CommandKind, ControlConfig, DriverError, DriverState
 from drivers.lifecycle import ManagedDriver
 from drivers.ur_rtde.driver import URRTDEDriver
 from drivers.ur_rtde.settings import URSettings
@@ -88,3 +89,25 @@ async def test_a_repeated_stop_reaches_the_script_once_and_keeps_the_watchdog_fe
         await _stop_for(arm, 0.05)
         assert _query(emulator, "motion")["stop_commands"] > after
         assert arm.state is DriverState.ACTIVE, arm.fault_detail
+
+
+async def test_the_stop_runs_while_the_ticks_go_on_and_its_failure_faults_the_driver() -> None:
+    """The stop's round trips are not the tick's: a stop that cannot finish (no RTDE data, so
+    it waits out the stall bound and fails) is answered at once, the reads in between repeat
+    the last sample, and the failure reaches the lifecycle at a later call (WATCHDOG)."""
+    with EmulatedController() as emulator:
+        driver = URRTDEDriver(URSettings(host=emulator.host, watchdog_periods=WATCHDOG_PERIODS))
+        async with active(driver, CONTROL) as arm:
+            await _stream(arm, 0.1)
+            last = await arm.read()
+            _query(emulator, "data_stall")
+            applied = await arm.write(STOP)  # waited for the stall bound and raised, before
+            assert applied.accepted and applied.q == last.q
+            calls = 0
+            with pytest.raises(DriverError, match="no new RTDE data"):
+                while calls < 10_000:  # bounded: the stop fails within its stall bound
+                    assert (await arm.read()).seq == last.seq  # no new sample meanwhile
+                    calls += 1
+                    await asyncio.sleep(PERIOD_S)
+            assert calls > 0
+            assert arm.state is DriverState.FAULT and arm.fault is ReasonCode.WATCHDOG
