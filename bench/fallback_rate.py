@@ -16,6 +16,10 @@ operator socket and the device would feed the core:
 - CONTROLLER_STOP: the device refused a write (the ``controller`` event the loop feeds on a
   refused command): STOP every tick with the driver still up.
 
+Ticks are counted only while the driver is up: a driver that faulted (an emulator starved on a
+loaded machine) is no longer called, and the states after it would measure nothing; the
+driver's faults are printed under each run.
+
 Printed per driver and state: ticks, deadline misses (a tick later than half a period, or a
 period skipped, as ``warden run`` counts them) as a share of the periods (ticks plus misses:
 a skipped period is a miss without a tick), p99 lateness,
@@ -77,7 +81,9 @@ class Walk:
         state = STATES[index]
         self._steer(context, state, into)
         mode = str(context.cell.core.state.fallback.mode)
-        if mode == state and state in self.done:
+        # A faulted driver is no longer called (the stop path is not exercised): not counted.
+        up = str(context.cell.driver.state) == "ACTIVE"
+        if mode == state and state in self.done and up:
             stats = self.stats[state]
             stats["ticks"] += 1
             stats["misses"] += misses
