@@ -10,13 +10,16 @@ watchdog (50 ms) the core must have made it a WATCHDOG fault, which the replay r
 from __future__ import annotations
 
 import json
+import re
 import time
 from pathlib import Path
 
 import pytest
+from rich.console import Console
 from structlog.testing import capture_logs
 
 from kernel.app.live import run_live
+from kernel.app.report import render_summary
 from kernel.app.session import RunContext
 from kernel.shell.loop import run
 from tests.cell.harness import manifest, replays_identically, run_dir
@@ -50,6 +53,11 @@ def test_a_stall_is_reported_and_is_a_watchdog_fault(tmp_path: Path) -> None:
     assert loop["longest_gap_ms"] >= STALL_S * 1000
     assert loop["periods_skipped"] >= stalled_periods
     assert loop["lateness_us"]["max"] < PERIOD_S * 1e6  # what hid the stall before
+    console = Console(record=True, width=120)
+    render_summary(summary, console)
+    table = console.export_text()
+    assert re.search(rf"longest tick gap \(ms\) +│ {loop['longest_gap_ms']:.1f} ", table)
+    assert re.search(rf"periods skipped +│ {loop['periods_skipped']} ", table)
     written = json.loads((run_dir(tmp_path) / "summary.json").read_text())
     assert written["loop"]["longest_gap_ms"] == loop["longest_gap_ms"]
     assert written["loop"]["periods_skipped"] == loop["periods_skipped"]
