@@ -185,7 +185,12 @@ def main() -> None:
           f"{'p99 us':>7} {'max gap ms':>10}")
     for manifest in args.manifests:
         for root in roots:
-            result = run_inner(root, manifest, args.window)
+            try:
+                result = run_inner(root, manifest, args.window)
+            except (RuntimeError, subprocess.TimeoutExpired) as error:  # the next cell still runs
+                reason = str(error).strip().splitlines()[-1][-120:]
+                print(f"{manifest:<20} {str(root)[-22:]:<22} not measured: {reason}")
+                continue
             for state, s in result["states"].items():
                 ticks = s["ticks"]
                 periods = ticks + s["misses"]  # a skipped period is a miss without a tick
