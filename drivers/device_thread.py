@@ -46,6 +46,22 @@ class DeviceThread:
             name = getattr(fn, "__name__", "call")
             raise DriverTimeout(self.device, f"{name} took longer than {timeout_s:.3f} s") from None
 
+    def submit(self, timeout_s: float, fn: Callable[..., T], *args: object) -> asyncio.Future[T]:
+        """Queue a call without waiting for it (a stop the control loop must not wait out):
+        the caller looks at the future on later ticks. Past ``timeout_s`` it fails with
+        :class:`DriverTimeout`, as :meth:`run` would; its error counts as retrieved, so a
+        caller that closes before looking leaves no warning behind."""
+        if self._closed:
+            raise RuntimeError(f"{self.device}: device thread is closed")
+        loop = asyncio.get_running_loop()
+        future: asyncio.Future[T] = loop.create_future()
+        name = getattr(fn, "__name__", "call")
+        expired = DriverTimeout(self.device, f"{name} took longer than {timeout_s:.3f} s")
+        timer = loop.call_later(timeout_s, _expire, future, expired)
+        future.add_done_callback(lambda done: (timer.cancel(), _retrieved(done)))
+        self._queue.put((fn, args, future, loop))
+        return future
+
     def close(self) -> None:
         """Stop accepting calls; a call stuck in the SDK is abandoned, not waited for."""
         if not self._closed:
@@ -78,3 +94,13 @@ def _deliver(loop: asyncio.AbstractEventLoop, future: asyncio.Future[Any], *,
 
     with contextlib.suppress(RuntimeError):  # the loop is closed: nobody is waiting any more
         loop.call_soon_threadsafe(settle)
+
+
+def _expire(future: asyncio.Future[Any], error: BaseException) -> None:
+    if not future.done():
+        future.set_exception(error)
+
+
+def _retrieved(future: asyncio.Future[Any]) -> None:
+    if not future.cancelled():
+        future.exception()

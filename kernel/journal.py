@@ -156,7 +156,7 @@ _BODIES: dict[type, Callable[[Any], dict[str, Any]]] = {
                                 **({"reason": e.reason} if e.reason else {})},
     ClockSyncEvent: lambda e: {"kind": "clock_sync", "domain": e.domain,
                                "offset_ns": e.offset, "round_trip_ns": e.round_trip},
-    TickEvent: lambda e: {"kind": "tick"},
+    TickEvent: lambda e: {"kind": "tick", **({"skipped": e.skipped} if e.skipped else {})},
     MoveEvent: lambda e: {"kind": "move", "move_id": e.move_id, "target": list(e.target)},
     GripperEvent: lambda e: {"kind": "gripper", "opening": e.opening},
     InsertEvent: lambda e: {"kind": "insert", "xy": list(e.xy), "z_end": e.z_end,

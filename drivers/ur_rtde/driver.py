@@ -1,6 +1,7 @@
 """Universal Robots e-Series over RTDE, through the real ur_rtde 1.6.5 library.
 
-Positions stream as servoJ at the control rate, velocities as speedJ; STOP is stopJ, HOLD is
+Positions stream as servoJ at the control rate, velocities as speedJ; STOP is stopJ (once: STOP
+repeated while the arm stays stopped only kicks the watchdog), HOLD is
 servoJ to the measured position (stopJ while inactive). Every read takes one snapshot of the
 receive interface and maps the controller's own words: safety bits (e-stop → E_STOP,
 protective/safeguard stop → CONTROLLER_FAULT), robot mode and runtime state while streaming
@@ -81,6 +82,11 @@ class URRTDEDriver:
         """URControl's version as the pre-flight probe read it."""
         self._active = False
         self._seq = 0
+        self._stopped = False
+        """This driver's stop brought the arm to rest and no command has moved it since."""
+        self._stopping: asyncio.Future[None] | None = None
+        """A stop under way on the device thread: the loop's ticks go on meanwhile."""
+        self._last: StateSample | None = None
 
     @classmethod
     def from_mapping(cls, table: Mapping[str, Any], where: str, name: str = "ur_rtde"
@@ -139,18 +145,24 @@ class URRTDEDriver:
         if not await self._run(link.program_running):
             await self._run(link.restart_script, timeout_s=self.settings.stop_timeout_s)
         await self._read_checked(streaming=True)
-        self._active = True
+        self._active, self._stopped = True, False
 
     async def read(self) -> StateSample:
+        if self._stop_under_way() and self._last is not None:
+            return self._last  # the device thread is busy stopping the arm: no new sample
         snapshot = await self._read_checked(streaming=self._active)
         self._seq += 1
-        return StateSample(
+        self._last = StateSample(
             seq=self._seq, t_mono_ns=snapshot.t_mono_ns, source=self.name, q=snapshot.q,
             qd=snapshot.qd, wrench=snapshot.tcp_force, speed_scaling=snapshot.speed_scaling,
             gripper=snapshot.gripper_opening,
         )
+        return self._last
 
     async def write(self, command: Command) -> Applied:
+        if command.kind is CommandKind.STOP:
+            return await self._stop()
+        await self._stop_finished()
         moves = command.kind in (CommandKind.POSITION, CommandKind.VELOCITY)
         if moves and command.gripper is not None and not math.isfinite(command.gripper):
             return await self._refused_and_kicked(command.kind)
@@ -161,6 +173,8 @@ class URRTDEDriver:
 
     async def _move(self, command: Command) -> Applied:
         link = self._link_or_raise()
+        if command.kind is not CommandKind.STOP:
+            self._stopped = False
         if command.kind is CommandKind.POSITION:
             if not _well_formed(command.q):
                 return await self._refused_and_kicked(command.kind)
@@ -184,7 +198,9 @@ class URRTDEDriver:
 
     async def hold(self) -> Applied:
         """Servo to the measured position while streaming; stopJ when not streaming."""
+        await self._stop_finished()
         link = self._link_or_raise()
+        self._stopped = False
         q = (await self._read_checked(streaming=self._active)).q
         if self._active:
             dt = max(self._period_s(), tables.CONTROLLER_CYCLE_S)
@@ -196,7 +212,8 @@ class URRTDEDriver:
     async def deactivate(self) -> None:
         """End servo or speed mode (the arm decelerates and stays powered), then remove the
         watchdog: that stops the control script; the next activation uploads it again."""
-        self._active = False
+        await self._stop_finished()
+        self._active = self._stopped = False
         link = self._link_or_raise()
         await self._run(link.end_streaming, timeout_s=self.settings.stop_timeout_s)
         await self._run(link.disarm_watchdog, timeout_s=self.settings.stop_timeout_s)
@@ -210,7 +227,7 @@ class URRTDEDriver:
         """Stop the script if the link is healthy, release both interfaces. Safe to call twice."""
         self._active = False
         thread, link = self._thread, self._link
-        self._thread, self._link = None, None
+        self._thread, self._link, self._stopping = None, None, None
         if thread is None:
             return
         try:
@@ -287,10 +304,51 @@ class URRTDEDriver:
         return _refused(kind, ReasonCode.CONTROLLER_REJECT)
 
     async def _stop(self) -> Applied:
+        """Stop once, without the loop waiting for it; a STOP repeated while the arm stays
+        stopped (every tick of E_STOP and CONTROLLER_STOP) only reads the status words and
+        kicks the watchdog.
+
+        The stop (servoStop or speedStop, stopJ, the watchdog lengthened around them) is
+        several blocking round trips to the script, 50 to 120 ms on the emulator and the
+        deceleration itself on an arm: sent every period it held the loop to ~200 Hz, and
+        awaited once it stalls the loop. So it runs on the device thread while the ticks go
+        on; until it is done, reads repeat the last sample (not fresh) and STOP is answered
+        without a call. Any other command waits for it; its failure is raised by the next call.
+        """
         link = self._link_or_raise()
-        await self._run(link.stop, timeout_s=self.settings.stop_timeout_s)
-        q = (await self._read_checked(streaming=False)).q
+        if self._stop_under_way():
+            return self._stop_applied()
+        if self._stopped and link.mode is Mode.IDLE:
+            q = (await self._read_checked(streaming=False)).q
+            await self._run(link.kick_watchdog)
+            return Applied(kind=CommandKind.STOP, t_mono_ns=time.monotonic_ns(), q=q)
+        if self._thread is None:
+            raise NotConnected(self.name, f"not connected to the arm at {self.settings.host}")
+        self._stopped = False
+        self._stopping = self._thread.submit(self.settings.stop_timeout_s, link.stop)
+        return self._stop_applied()
+
+    def _stop_applied(self) -> Applied:
+        q = self._last.q if self._last is not None else ()
         return Applied(kind=CommandKind.STOP, t_mono_ns=time.monotonic_ns(), q=q)
+
+    def _stop_under_way(self) -> bool:
+        """Whether a stop is still under way; one that failed raises its error here."""
+        call = self._stopping
+        if call is None or not call.done():
+            return call is not None
+        self._stopping = None
+        error = call.exception()
+        if error is not None:
+            raise self._driver_error(error) from error
+        self._stopped = True
+        return False
+
+    async def _stop_finished(self) -> None:
+        """A command other than STOP (a hold after a recovery) starts once the stop is done."""
+        if self._stopping is not None:
+            await asyncio.wait([self._stopping])
+            self._stop_under_way()
 
     async def _run(self, fn: Callable[..., T], *args: object, timeout_s: float | None = None
                    ) -> T:
@@ -299,14 +357,18 @@ class URRTDEDriver:
             raise NotConnected(self.name, f"not connected to the arm at {self.settings.host}")
         try:
             return await self._thread.run(timeout_s or self.settings.call_timeout_s, fn, *args)
-        except LinkDown as error:
-            raise NotConnected(self.name, f"{self.settings.host}: {error}") from error
-        except LinkStalled as error:
-            raise DriverTimeout(self.name, f"{self.settings.host}: {error}") from error
-        except DriverError:
-            raise
-        except RuntimeError as error:
-            raise DriverIOError(self.name, f"ur_rtde: {error}") from error
+        except (LinkDown, LinkStalled, RuntimeError) as error:
+            raise self._driver_error(error) from error
+
+    def _driver_error(self, error: BaseException) -> BaseException:
+        """The driver's error for link trouble; anything else as it is."""
+        if isinstance(error, LinkDown):
+            return NotConnected(self.name, f"{self.settings.host}: {error}")
+        if isinstance(error, LinkStalled):
+            return DriverTimeout(self.name, f"{self.settings.host}: {error}")
+        if isinstance(error, RuntimeError) and not isinstance(error, DriverError):
+            return DriverIOError(self.name, f"ur_rtde: {error}")
+        return error
 
     def _link_or_raise(self) -> Link:
         if self._link is None:

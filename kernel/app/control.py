@@ -107,14 +107,15 @@ class ControlLoop:
         if self.on_cycle is not None:
             self.on_cycle(result)
 
-    async def tick(self) -> None:
+    async def tick(self, skipped: int = 0) -> None:
+        """One period (``skipped``: periods the timer saw pass without a tick just before)."""
         sample = await self._read()
         # Stamp after the read: while it awaited, the policy link may have fed the core a
         # later event, and the core only ever moves forward in time. Everything from here to
         # the write is synchronous, so the whole decision of this period shares one instant.
         t = self.gateway.now_ns()
         try:
-            motion = self._decide(sample, t)
+            motion = self._decide(sample, t, skipped)
         except Exception:
             # A software fault never leaves the last command live: stop the device, then let
             # the error end the run (the supervisor reports it).
@@ -130,7 +131,7 @@ class ControlLoop:
         self.counters.ticks += 1
         self._maybe_next_cycle(t)
 
-    def _decide(self, sample: StateSample, t: int) -> Motion | None:
+    def _decide(self, sample: StateSample, t: int, skipped: int) -> Motion | None:
         """Sense, let the operator and the task speak, and ask the core for the command."""
         sensed = self._sense(sample, t)
         self._report_driver_fault(t)
@@ -142,7 +143,7 @@ class ControlLoop:
                 self.gateway.feed(event)
         for request in self.runner.update(sensed, self.gateway.status()):
             self.gateway.feed(_event(request, t))
-        return self.gateway.tick(t)
+        return self.gateway.tick(t, skipped)
 
     async def _read(self) -> StateSample:
         """A fresh sample, or (the driver just faulted) the last one, marked with the fault."""

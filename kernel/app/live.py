@@ -41,7 +41,7 @@ from kernel.shell.operator import OperatorServer
 from kernel.shell.realtime import log_report, restore, try_realtime
 from kernel.shell.supervisor import RestartPolicy, Supervisor, describe, failure_fields
 from kernel.shell.systemd import ServiceNotifier
-from kernel.shell.timer import MonotonicClock, PeriodicTimer
+from kernel.shell.timer import MonotonicClock, PeriodicTimer, Tick
 from kernel.shell.worker import JobWorker
 
 log = structlog.get_logger("warden.run")
@@ -49,6 +49,9 @@ EARLY_WAKE_NS = 200_000
 """Wake this long before each deadline and spin the rest: a timerfd wake-up alone is late by
 hundreds of microseconds at p99 under load (bench/loop.py measures both)."""
 
+
+STALL_PERIODS = 25
+"""Without a state watchdog, a gap of this many periods is logged as a stall."""
 
 TickHook = Callable[[RunContext], bool]
 """Called after every control tick (tests and fault campaigns); returning True ends the run."""
@@ -179,6 +182,9 @@ class _Loop:
         self.heartbeat = HeartbeatSender(None)
         self._status = ""
         period = context.cell.core.config.control_period_ns
+        timeout = context.cell.core.config.state_timeout_ns
+        self.stall_ns = timeout if timeout is not None else STALL_PERIODS * period
+        """A gap between ticks longer than this is logged as a stall (the state watchdog)."""
         self.pacer = AdmissionPacer(context.manifest.policy.admissions_per_period, period // 2)
 
     async def run(self) -> None:
@@ -190,10 +196,8 @@ class _Loop:
             while not (cell.controller.finished or self.stop.requested
                        or cell.controller.record_failed) and cell.gateway.now_ns() < budget_ns:
                 tick = await timer.wait()
-                self.context.lateness_ns.append(tick.lateness_ns)
-                if tick.skipped or tick.lateness_ns > period // 2:
-                    self.context.misses += max(1, tick.skipped)
-                await cell.controller.tick()
+                self._timed(tick, period)
+                await cell.controller.tick(tick.skipped)
                 self.pacer.period_done(tick.deadline_ns + period)
                 self.service.alive()  # only a loop that completes its ticks feeds the watchdog
                 self.heartbeat.beat()  # ... and the safety monitor's heartbeat
@@ -202,6 +206,24 @@ class _Loop:
                     self.ended_by_hook = True
                     break
         self.heartbeat.closing()  # ended in order (an error skips this: the monitor stops)
+
+    def _timed(self, tick: Tick, period: int) -> None:
+        """Lateness within the period, misses, and the gap since the previous tick: a stall
+        shows only there (lateness is measured from the latest deadline, so it stays under
+        one period however long the loop stood still). A stall past the state watchdog is
+        logged here; the core makes it a WATCHDOG fault from the tick times."""
+        context = self.context
+        context.lateness_ns.append(tick.lateness_ns)
+        if tick.skipped or tick.lateness_ns > period // 2:
+            context.misses += max(1, tick.skipped)
+        context.periods_skipped += tick.skipped
+        if context.last_woke_ns is not None:
+            gap = tick.woke_ns - context.last_woke_ns
+            context.longest_gap_ns = max(context.longest_gap_ns, gap)
+            if gap > self.stall_ns:
+                log.error("control loop stalled", gap_ms=round(gap / 1e6, 1),
+                          periods_skipped=tick.skipped, watchdog_ms=self.stall_ns / 1e6)
+        context.last_woke_ns = tick.woke_ns
 
     def _report(self) -> None:
         report_progress(self.context, self.progress)

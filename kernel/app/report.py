@@ -127,6 +127,9 @@ def _rows(s: dict[str, Any]) -> list[tuple[str, str]]:
                      f" max {loop['lateness_us']['max']:.0f}" if loop.get("lateness_us") else "-"))
         rows.append(("deadline misses", f"{loop.get('misses', 0)} "
                      f"({loop.get('miss_rate', 0.0) * 100:.2f} %)"))
+        if "longest_gap_ms" in loop:  # a stall shows here, never in the lateness
+            rows.append(("longest tick gap (ms)", f"{loop['longest_gap_ms']:.1f}"))
+            rows.append(("periods skipped", str(loop["periods_skipped"])))
         if loop.get("realtime"):
             rows.append(("scheduling", loop["realtime"]))
     for key in ("link", "driver", "journal"):

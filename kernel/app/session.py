@@ -13,6 +13,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import structlog
+
 from drivers.base import ControlConfig
 from kernel.app.compose import Cell, build_cell, effective, world_for
 from kernel.app.interrupt import StopSignals
@@ -27,6 +29,8 @@ from kernel.shell.record_file import RecordFile, open_run_files
 from kernel.shell.recorder import Recorder
 from kernel.shell.timer import Clock
 from kernel.summary import CycleResult, RunSummary, percentiles
+
+log = structlog.get_logger("warden.run")
 
 
 @dataclass
@@ -82,6 +86,10 @@ class RunContext:
     summary: RunSummary = field(default_factory=RunSummary)
     lateness_ns: list[int] = field(default_factory=list)
     misses: int = 0
+    periods_skipped: int = 0
+    longest_gap_ns: int = 0
+    """The longest time between two ticks' wake-ups (a stall; lateness cannot show one)."""
+    last_woke_ns: int | None = None
     heartbeat: HeartbeatStats | None = None
     """The safety monitor's heartbeat as sent so far (a live run with ``[safety]``)."""
 
@@ -205,6 +213,12 @@ def finish(context: RunContext, extra: dict[str, Any]) -> dict[str, Any]:
         "miss_rate": context.misses / ticks if ticks else 0.0,
         "lateness_us": _lateness(lateness), **extra.pop("loop", {}),
     }
+    if context.last_woke_ns is not None:  # a timer paced the loop (a wall-clock run)
+        summary.loop.update(longest_gap_ms=round(context.longest_gap_ns / 1e6, 3),
+                            periods_skipped=context.periods_skipped)
+        log.info("control loop", ticks=ticks, misses=context.misses,
+                 longest_gap_ms=summary.loop["longest_gap_ms"],
+                 periods_skipped=context.periods_skipped)
     summary.extra.update(extra)
     cut = context.cell.controller.cut
     summary.extra["cycle_cut_short"] = cut.index if cut is not None else None

@@ -160,6 +160,10 @@ class TickEvent(msgspec.Struct, frozen=True, kw_only=True):
     """An explicit control tick (journals record them; scenario ticks are generated)."""
 
     t: int
+    skipped: int = 0
+    """Control periods that passed without a tick just before this one (a stall, as the
+    loop's timer counted it). A record for the reader: the core decides from the gap
+    between tick times."""
 
 
 class ChunkEvent:

@@ -42,6 +42,7 @@ class TickCommand(msgspec.Struct, frozen=True, eq=False):
 
 
 def tick(state: CoreState) -> TickCommand:
+    _stall(state)
     state.last_tick = state.t
     _watchdog(state)
     if state.task.phase is TaskPhase.VALIDATE:
@@ -76,6 +77,19 @@ def _motion(state: CoreState, decision: TickCommand, row: Row | None) -> Motion:
     context = MotionContext(state.config, state.t, state.measured_q, state.emit)
     return motion_for(state.motion, context, decision.command, decision.owner, decision.target,
                       sent, stream, decision.relax)
+
+
+def _stall(state: CoreState) -> None:
+    """A control loop that stalled past the state watchdog is a fault, not a quiet delay: for
+    that long nothing was decided and no command went out, whatever the samples say now. The
+    gap is between tick times, which the journal records, so a replay decides the same."""
+    timeout = state.config.state_timeout_ns
+    if timeout is None or state.last_tick is None:
+        return
+    gap = state.t - state.last_tick
+    if gap > timeout:
+        state.fire(R.WATCHDOG, detail=f"no control tick for {ns_to_ms(gap)} ms (state "
+                   f"watchdog {ns_to_ms(timeout)} ms): the control loop stalled")
 
 
 def _watchdog(state: CoreState) -> None:

@@ -247,7 +247,7 @@ def _clock_sync(t: int, item: Mapping[str, Any], where: Where, _: JointLimits) -
 
 
 def _tick(t: int, item: Mapping[str, Any], where: Where, _: JointLimits) -> Event:
-    return TickEvent(t=t)
+    return TickEvent(t=t, skipped=integer(item, "skipped", where, default=0, minimum=0))
 
 
 _PARSERS: dict[str, Parser] = {

@@ -70,10 +70,10 @@ class CoreGateway:
                 handler(effect)
         return step
 
-    def tick(self, t_ns: int) -> Motion | None:
-        """Run the control tick at ``t_ns``: the command the core decided for the arm (None
-        only once the run is over)."""
-        return self.feed(TickEvent(t=t_ns)).motion
+    def tick(self, t_ns: int, skipped: int = 0) -> Motion | None:
+        """Run the control tick at ``t_ns`` (``skipped``: periods the loop missed just before
+        it): the command the core decided for the arm (None only once the run is over)."""
+        return self.feed(TickEvent(t=t_ns, skipped=skipped)).motion
 
     def record_command(self, t_ns: int, effect: Motion, applied: Applied | None,
                        origin: str = "core") -> None:

@@ -153,9 +153,10 @@ class URController:
         }
 
     def _motion(self) -> dict[str, int]:
-        """Not a fault: how many motion commands the control script executed (tests)."""
+        """Not a fault: how many motion and stop commands the control script executed."""
         with self.lock:
-            return {"motion_commands": self.script.motion_commands}
+            return {"motion_commands": self.script.motion_commands,
+                    "stop_commands": self.script.stop_commands}
 
     def _lose_io_writes(self, count: int) -> None:
         with self._locked():

@@ -42,7 +42,8 @@ MOTION_COMMANDS = frozenset({
     18, 41, 45, 51, 52, 66,  # teachMode, jogStart, movePath, moveUntilContact, freedrive, torque
 })
 """Every command of rtde_control.script that can set the arm in motion; the stops (speedStop,
-servoStop, stopL, stopJ) only bring it to rest, and are not counted."""
+servoStop, stopL, stopJ) only bring it to rest, and are counted apart."""
+STOP_COMMANDS = frozenset({SPEED_STOP, SERVO_STOP, STOPL, STOPJ})
 READY, DONE = 1, 2
 ARRIVED_RAD = 1e-3
 
@@ -79,6 +80,8 @@ class ControlScript:
         self._servo_window: ServoLookahead | None = None
         self._stopping: ProgramStop | None = None
         self.motion_commands = 0
+        self.stop_commands = 0
+        """Stops the script executed: each is a round trip a client waits for (tests)."""
         """Motion commands executed since the controller started: one per command, and one per
         controller cycle for a real-time one (servoJ, speedJ, ...), which runs every cycle."""
         self._by_command: dict[int, Callable[[], None]] = {
@@ -171,6 +174,8 @@ class ControlScript:
     def _process(self, command: int) -> None:
         if command in MOTION_COMMANDS:
             self.motion_commands += 1
+        elif command in STOP_COMMANDS:
+            self.stop_commands += 1
         if command not in (SERVOJ, SET_WATCHDOG):
             self._servo_window = None  # after any other motion servoj starts afresh
         handler = self._by_command.get(command)
