@@ -1,5 +1,6 @@
 """Every numeric setting of ``[policy]`` and of each vendor driver, set to every extreme value:
-refused with a ``SettingsError`` naming the key, or usable (:mod:`tests.fuzz.settings_use`).
+refused with a ``SettingsError`` naming the key, or usable: loaded as the file gives it, finite,
+inside its documented range, and computed with as a run does (:mod:`tests.fuzz.settings_use`).
 
 The property tests of ``test_property_loaders.py`` draw a few of these combinations through
 the whole of ``warden run``'s checks; this sweep tries all of them against the settings tables
@@ -45,6 +46,20 @@ def _assert_bounded(settings: Any) -> None:
             if isinstance(number, int | float) and not isinstance(number, bool):
                 assert math.isfinite(number) and abs(number) <= MAGNITUDE_MAX, (
                     f"{field.name} = {value} was accepted")
+
+
+def _assert_usable(settings: Any, key: str, value: Any) -> None:
+    """What "usable" means for a setting the loader accepted: the loaded value is the file's
+    (not a default put in its place), finite and bounded, inside the key's documented range
+    where it has one; then the run's own arithmetic on it (``use_*``) does not fail. A loader
+    that accepts everything, or swaps what it cannot take for a default, fails here."""
+    loaded = getattr(settings, key)
+    assert loaded == (tuple(value) if isinstance(value, list) else value), (
+        f"{key} = {value!r} was accepted as {loaded!r}")
+    _assert_bounded(settings)
+    if key in POLICY_LINK_BOUNDS:
+        low, high = POLICY_LINK_BOUNDS[key]
+        assert low <= loaded <= high, f"{key} = {loaded!r} is outside [{low}, {high}]"
 
 
 def _shipped_tables() -> dict[str, dict[str, Any]]:
@@ -98,7 +113,7 @@ def test_every_driver_setting_is_refused_or_usable(driver: str, key: str, is_lis
         except SettingsError as error:
             assert str(error).startswith("cell.toml: driver"), error
             continue
-        _assert_bounded(settings)
+        _assert_usable(settings, key, value)
         use_driver_settings(settings, PERIOD_S)
 
 
@@ -115,7 +130,7 @@ def test_every_policy_link_setting_is_refused_or_usable(key: str) -> None:
         except SettingsError as error:
             assert str(error).startswith("cell.toml: policy"), error
             continue
-        _assert_bounded(settings)
+        _assert_usable(settings, key, value)
         use_policy(settings, 2_000_000)
 
 

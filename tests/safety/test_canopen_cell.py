@@ -101,7 +101,7 @@ def test_the_listener_sees_what_warden_moves_and_a_whole_cycle_trips_nothing(
         manifest).safety)  # a second listener, in the test, to compare with the ground truth
     warden: Warden | None = None
     try:
-        assert monitor.wait_watching()["ok"]
+        monitor.wait_connected()
         listener.connect()
         warden = Warden(manifest, tmp_path)
         with _operator(tmp_path, control) as recovered:
@@ -185,7 +185,7 @@ def test_a_joint_past_the_monitors_limit_is_stopped_through_nmt(
     monitor = Monitor(tight, tmp_path)
     warden: Warden | None = None
     try:
-        assert monitor.wait_watching()["ok"]
+        monitor.wait_connected()
         warden = Warden(manifest, tmp_path)  # warden's own limits are the wide ones
         crossed_at, speed = _crossing(control, warden)
         wait_for(lambda: _quick_stopped_at_rest(control), "the monitor's stop", timeout_s=5,
@@ -230,7 +230,7 @@ def test_a_warden_stopped_mid_motion_is_stopped_through_nmt(
     monitor = Monitor(manifest, tmp_path)
     warden: Warden | None = None
     try:
-        assert monitor.wait_watching()["ok"]
+        monitor.wait_connected()
         warden = Warden(manifest, tmp_path)
         speed = wait_for(lambda: _moving(control, monitor, warden), "warden moving the arm")
         assert not monitor.events("safety stop")  # nothing was wrong until now

@@ -87,7 +87,7 @@ def test_a_warden_stopped_mid_motion_is_stopped_through_the_dashboard(
     monitor = Monitor(manifest, tmp_path)
     warden: Warden | None = None
     try:
-        assert monitor.wait_watching()["ok"]
+        monitor.wait_connected()
         warden = Warden(manifest, tmp_path)
         speed = wait_for(lambda: _moving(arm, monitor, warden), "warden moving the arm")
         assert not monitor.events("safety stop")  # nothing was wrong until now
@@ -128,7 +128,7 @@ def test_a_joint_past_the_monitors_limit_is_stopped_through_the_dashboard(
     monitor = Monitor(tight, tmp_path)
     warden: Warden | None = None
     try:
-        assert monitor.wait_watching()["ok"]
+        monitor.wait_connected()
         warden = Warden(manifest, tmp_path)  # warden's own limits are the wide ones
         crossed = _crossing(lambda: arm.truth(), warden)
         wait_for(arm.stopped_at_rest, "the monitor's stop", timeout_s=5, poll_s=0.002)
@@ -179,7 +179,7 @@ def _sim_cell_watched(tmp_path: Path, monitors: Callable[[Path], Path],
     try:
         wait_for(lambda: _answers(world, warden), "the simulated world's control port")
         monitor = Monitor(monitors(manifest), tmp_path)
-        assert monitor.wait_watching()["ok"]
+        monitor.wait_connected()
         yield world, warden, monitor
         assert inject(world, "brake_state")["ignored"] > 0  # warden kept commanding, in vain
     finally:
