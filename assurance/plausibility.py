@@ -16,7 +16,10 @@ since the last sample that was plausible:
 Noise and timing are tolerated explicitly: ``position_rad`` (encoder resolution, two
 quantised readings), ``velocity_rad_s`` (velocity resolution and lag, integrated over the
 time since the last plausible sample), and a sample that may be up to ``jitter_ns`` older than
-its stamp says (a device cycle plus read latency), at the velocity it reported. The gripper
+its stamp says (a device cycle plus read latency), at the velocity it reported. A reading
+repeated bit for bit while the device reports the joints moving (the driver read again before
+the device's next frame came) is not new: it keeps the verdict of the sample it repeats, and
+its later stamp moves nothing. The gripper
 dimension is never judged here: its opening is not a joint of the arm.
 
 Pure: times are arguments; the limits are the robot's own (the core's configuration).
@@ -24,7 +27,7 @@ Pure: times are arguments; the limits are the robot's own (the core's configurat
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from enum import StrEnum
 
 import numpy as np
@@ -41,18 +44,20 @@ class Tolerances:
 
     position_rad: float = 5e-3
     velocity_rad_s: float = 0.05
-    velocity_factor: float = 1.5
+    velocity_factor: float = 2.0
     """A reported speed up to this multiple of the joint's limit (plus the velocity noise) is
     still a motion; beyond it, not (a push, an impact, tracking overshoot stay well below)."""
     acceleration_factor: float = 4.0
     """The same for the acceleration the position and velocity readings imply together: the
     limits are what warden commands, contact and impacts may briefly exceed them."""
     jitter_periods: float = 2.0
-    """A sample may be this many control periods older than its stamp."""
+    jitter_s: float = 0.01
+    """A sample may be this many control periods, or this many seconds if more, older than
+    its stamp when it is first read (a device cycle, a receive thread that ran late)."""
 
     def __post_init__(self) -> None:
         for name in ("position_rad", "velocity_rad_s", "velocity_factor",
-                     "acceleration_factor", "jitter_periods"):
+                     "acceleration_factor", "jitter_periods", "jitter_s"):
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0):
                 raise ValueError(f"plausibility {name} must be positive and finite, got {value}")
@@ -78,7 +83,7 @@ class Bounds:
         return cls(velocity=limits.velocity[arm] * tol.velocity_factor,
                    acceleration=limits.acceleration[arm] * tol.acceleration_factor,
                    position_noise=tol.position_rad, velocity_noise=tol.velocity_rad_s,
-                   jitter_s=tol.jitter_periods * period_ns * NS)
+                   jitter_s=max(tol.jitter_periods * period_ns * NS, tol.jitter_s))
 
 
 class Breach(StrEnum):
@@ -117,6 +122,8 @@ class Track:
 
     anchor_t: int
     anchor_q: np.ndarray
+    anchor_u: float
+    """How much earlier than its stamp the anchor may have been measured (s)."""
     last_t: int
     last_qd: np.ndarray | None
     predicted: np.ndarray | None
@@ -124,6 +131,9 @@ class Track:
     sample on the way reported none."""
     drift: np.ndarray
     """The integral's tolerance so far: a·dt²/4 per interval."""
+    last_q: np.ndarray | None = None
+    last_finding: Finding | None = None
+    """The previous sample's reading and verdict: a repeat of it gets the same verdict."""
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -146,20 +156,37 @@ def judge(track: Track | None, t: int, q: np.ndarray, qd: np.ndarray | None,
     past its limit ends the integral (it would carry the path away): until the next plausible
     sample, positions are judged by the velocity limit alone.
     """
+    if track is not None and _repeats(track, q, qd):
+        return Verdict(track, track.last_finding)
     finding = _velocity_breach(qd, bounds)
     if track is None:
-        return Verdict(_anchored(t, q, qd) if finding is None else None, finding)
+        return Verdict(_anchored(t, q, qd, bounds.jitter_s) if finding is None else None,
+                       finding)
+    # Measured at most this long before its stamp: within its read, which began after the
+    # sample before was stamped (a loaded machine's read can take tens of milliseconds).
+    late = max(bounds.jitter_s, (t - track.last_t) * NS)
     advanced = _advance(track, t, qd if finding is None else None, bounds)
     finding = finding or _step_breach(track, t, q, bounds) or _path_breach(
-        track, advanced, q, qd, bounds)
+        track, advanced, q, qd, late, bounds)
     if finding is None:
-        return Verdict(_anchored(t, q, qd), None)
-    return Verdict(advanced, finding)
+        return Verdict(_anchored(t, q, qd, late), None)
+    return Verdict(replace(advanced, last_q=q.copy(), last_finding=finding), finding)
 
 
-def _anchored(t: int, q: np.ndarray, qd: np.ndarray | None) -> Track:
-    return Track(anchor_t=t, anchor_q=q.copy(), last_t=t, last_qd=qd,
-                 predicted=q.copy(), drift=np.zeros_like(q))
+def _repeats(track: Track, q: np.ndarray, qd: np.ndarray | None) -> bool:
+    """The same reading again, bit for bit, of a joint the device says is moving: a driver
+    that read before the device's next frame came. It says nothing new, and its stamp is not
+    when it was measured. (An arm at rest reads the same again and again, and each of those
+    is a measurement.)"""
+    if qd is None or track.last_q is None or track.last_qd is None:
+        return False
+    return bool(np.any(qd != 0.0) and np.array_equal(q, track.last_q)
+                and np.array_equal(qd, track.last_qd))
+
+
+def _anchored(t: int, q: np.ndarray, qd: np.ndarray | None, late: float) -> Track:
+    return Track(anchor_t=t, anchor_q=q.copy(), anchor_u=late, last_t=t, last_qd=qd,
+                 predicted=q.copy(), drift=np.zeros_like(q), last_q=q.copy())
 
 
 def _velocity_breach(qd: np.ndarray | None, bounds: Bounds) -> Finding | None:
@@ -170,7 +197,7 @@ def _velocity_breach(qd: np.ndarray | None, bounds: Bounds) -> Finding | None:
 
 
 def _step_breach(track: Track, t: int, q: np.ndarray, bounds: Bounds) -> Finding | None:
-    elapsed = (t - track.anchor_t) * NS + bounds.jitter_s
+    elapsed = (t - track.anchor_t) * NS + track.anchor_u
     reach = bounds.position_noise + bounds.velocity * elapsed
     return _first(Breach.STEP, np.abs(q - track.anchor_q), reach)
 
@@ -179,22 +206,23 @@ def _advance(track: Track, t: int, qd: np.ndarray | None, bounds: Bounds) -> Tra
     """The integral carried on to ``t`` with the velocity reported now: over an interval the
     trapezoid of its two velocities is off by at most a·dt²/4 at acceleration a."""
     if qd is None or track.last_qd is None or track.predicted is None:
-        return Track(track.anchor_t, track.anchor_q, t, qd, None, track.drift)
+        return replace(track, last_t=t, last_qd=qd, predicted=None)
     dt = (t - track.last_t) * NS
     predicted = track.predicted + 0.5 * (track.last_qd + qd) * dt
     drift = track.drift + bounds.acceleration * dt * dt / 4.0
-    return Track(track.anchor_t, track.anchor_q, t, qd, predicted, drift)
+    return replace(track, last_t=t, last_qd=qd, predicted=predicted, drift=drift)
 
 
 def _path_breach(track: Track, advanced: Track, q: np.ndarray, qd: np.ndarray | None,
-                 bounds: Bounds) -> Finding | None:
+                 late: float, bounds: Bounds) -> Finding | None:
     if advanced.predicted is None or qd is None or track.last_qd is None:
         return None
     elapsed = (advanced.last_t - advanced.anchor_t) * NS
-    # Either sample may be up to the jitter older than its stamp, at the speed it reported.
+    # The anchor and this sample were measured up to their own lateness before their stamps,
+    # at about the speed they reported.
     speed = np.minimum(np.maximum(np.abs(qd), np.abs(track.last_qd)), bounds.velocity)
     allowed = (bounds.position_noise + advanced.drift + bounds.velocity_noise * elapsed
-               + (speed + bounds.velocity_noise) * bounds.jitter_s)
+               + (speed + bounds.velocity_noise) * (track.anchor_u + late))
     return _first(Breach.PATH, np.abs(q - advanced.predicted), allowed)
 
 

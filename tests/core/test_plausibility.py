@@ -107,7 +107,7 @@ def test_a_reading_offset_is_implausible_while_it_lasts(
 
 def test_the_issue_glitch_is_implausible_for_its_whole_200_ms() -> None:
     """Joint 0 turning at 0.2 rad/s reads 0.5 rad off for 200 ms: the velocity limit alone
-    would accept it after 0.5 rad / (1.5 × 3.14 rad/s) ≈ 106 ms; its reported velocity does
+    would accept it after 0.5 rad / (2 × 3.14 rad/s) ≈ 80 ms; its reported velocity does
     not explain it at any point."""
     b = bounds()
     qd = np.array([0.2, 0, 0, 0, 0, 0])
@@ -127,7 +127,7 @@ def test_without_reported_velocities_only_the_velocity_limit_judges() -> None:
     b = bounds()
     q0 = np.zeros(DOF)
     track = judge(None, 0, q0, None, b).track
-    near = q0 + 0.02  # 0.02 rad in 2 ms: 10 rad/s > 1.5 × 3.14, but inside the stamp jitter
+    near = q0 + 0.02  # 0.02 rad in 2 ms: 10 rad/s > 2 × 3.14, but inside the stamp jitter
     far = q0 + np.array([0.1, 0, 0, 0, 0, 0])
     assert judge(track, 2 * MS, near, None, b).plausible
     verdict = judge(track, 2 * MS, far, None, b)
@@ -137,7 +137,7 @@ def test_without_reported_velocities_only_the_velocity_limit_judges() -> None:
 
 def test_a_velocity_past_its_limit_is_implausible_and_the_first_sample_anchors_nothing() -> None:
     b = bounds()
-    fast = np.array([0, 0, 0, 5.0, 0, 0])  # 5 rad/s > 1.5 × 3.14 + 0.05
+    fast = np.array([0, 0, 0, 7.0, 0, 0])  # 7 rad/s > 2 × 3.14 + 0.05
     verdict = judge(None, 0, np.zeros(DOF), fast, b)
     assert verdict.finding is not None and verdict.finding.breach is Breach.VELOCITY
     assert verdict.finding.joint == 3 and verdict.track is None
@@ -178,3 +178,29 @@ def test_the_core_holds_where_the_arm_was_last_plausibly_measured() -> None:
     assert transitions == []  # one transition, at the first glitched sample only
     assert np.allclose(core.state.measured_q, home)
     assert all(isinstance(m, Setpoint) and np.allclose(m.q, home) for m in holds)
+
+
+def test_a_repeated_reading_keeps_its_verdict_and_its_time() -> None:
+    """A driver that reads faster than the device sends repeats a frame; at 2 rad/s the
+    repeats, stamped later, would look 40 mm... rad behind the path. A repeated glitch stays
+    implausible."""
+    b = bounds()
+    qd = np.array([2.0, 0, 0, 0, 0, 0])
+    q0 = np.zeros(DOF)
+    stale = [(k * 2 * MS, q0, qd) for k in range(10)]  # one frame, read ten times in 20 ms
+    fresh = (20 * MS, qd * 0.02, qd)
+    assert all(feed([*stale, fresh], b))
+    glitched = q0 + np.array([0.5, 0, 0, 0, 0, 0])
+    assert feed([(0, q0, qd), (2 * MS, glitched, qd), (4 * MS, glitched, qd)], b) == [
+        True, False, False]
+
+
+def test_an_arm_at_rest_is_measured_afresh_by_every_identical_reading() -> None:
+    """At rest every reading is the same, and each is a measurement: a glitch after a long
+    rest is judged against the last one, not against the first (the velocity limit alone
+    would allow 0.5 rad after 106 ms)."""
+    b = bounds(8.0)
+    zero, q0 = np.zeros(DOF), np.zeros(DOF)
+    rest = [(k * 8 * MS, q0, zero) for k in range(100)]
+    glitched = q0 + np.array([0.5, 0, 0, 0, 0, 0])
+    assert feed([*rest, (800 * MS, glitched, zero)], b)[-1] is False
