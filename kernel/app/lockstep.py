@@ -7,19 +7,22 @@ advances the virtual clock by exactly one control period.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from kernel.app import standins
 from kernel.app.report import CycleProgress
-from kernel.app.session import bring_up, finish, open_run, report_progress
+from kernel.app.session import RunContext, bring_up, finish, open_run, report_progress
 from kernel.manifest import Manifest, ManifestError
 from kernel.shell.timer import VirtualClock
 from kernel.shell.worker import InlineJobs
 
 
 async def run_lockstep(manifest: Manifest, journal_dir: Path | None,
-                       progress: CycleProgress | None = None) -> dict[str, Any]:
+                       progress: CycleProgress | None = None,
+                       hook: Callable[[RunContext], bool] | None = None) -> dict[str, Any]:
+    """``hook``: called after every tick, as a live run's is; True ends the run (tests)."""
     if manifest.driver_name != "sim":
         raise ManifestError(f"{manifest.path}: cell.clock: a virtual clock needs the in-process "
                             f"plant (driver 'sim'); {manifest.driver_name!r} runs in real time")
@@ -40,6 +43,8 @@ async def run_lockstep(manifest: Manifest, journal_dir: Path | None,
             await cell.controller.tick()
             context.recorder.hand_over_if_due()
             report_progress(context, progress)
+            if hook is not None and hook(context):
+                break
             clock.advance(period)
     finally:
         await cell.driver.aclose()
