@@ -124,6 +124,7 @@ def _rules(degrade_after: int) -> dict[R, Rule]:
         Rule(R.HUMAN_TAKEOVER, Mode.HUMAN_RECOVERY, _NOT_ESTOP - {Mode.HUMAN_RECOVERY}),
         Rule(R.CONTACT_ANOMALY, Mode.CONTACT_FALLBACK, _CONTACT_SOURCES),
         Rule(R.STATE_DIVERGED, Mode.SAFE_HOLD, _SOFT),
+        Rule(R.STATE_IMPLAUSIBLE, Mode.SAFE_HOLD, _SOFT),
         Rule(R.OOD, Mode.SAFE_HOLD, _SOFT),
         Rule(R.HOLD_REQUESTED, Mode.SAFE_HOLD, _SOFT),
         Rule(R.UNDERRUN, Mode.SAFE_HOLD, _SOFT),

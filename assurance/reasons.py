@@ -77,6 +77,11 @@ class ReasonCode(StrEnum):
     """The run's journal or decision log can no longer be written (a full, failing or
     read-only disk): the arm stops and the run ends, since what followed could be neither
     replayed nor audited."""
+    STATE_IMPLAUSIBLE = "STATE_IMPLAUSIBLE"
+    """A state sample no joint of this arm can have produced (a velocity past its limit, a
+    position step too large for the time since the last plausible sample, or off the path its
+    reported velocities integrate to): it is never a measurement, never a hold target; the
+    arm holds where it was last plausibly measured (SAFE_HOLD)."""
 
 
 _ORDER = {code: index for index, code in enumerate(ReasonCode)}

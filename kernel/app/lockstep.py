@@ -7,6 +7,7 @@ advances the virtual clock by exactly one control period.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -14,6 +15,7 @@ from kernel.app import standins
 from kernel.app.interrupt import StopSignals
 from kernel.app.report import CycleProgress
 from kernel.app.session import (
+    RunContext,
     bring_up,
     close_record,
     cut_short_reason,
@@ -27,16 +29,19 @@ from kernel.shell.worker import InlineJobs
 
 
 async def run_lockstep(manifest: Manifest, journal_dir: Path | None,
-                       progress: CycleProgress | None = None) -> dict[str, Any]:
+                       progress: CycleProgress | None = None,
+                       hook: Callable[[RunContext], bool] | None = None) -> dict[str, Any]:
+    """``hook``: called after every tick, as a live run's is; True ends the run (tests)."""
     if manifest.driver_name != "sim":
         raise ManifestError(f"{manifest.path}: cell.clock: a virtual clock needs the in-process "
                             f"plant (driver 'sim'); {manifest.driver_name!r} runs in real time")
     with StopSignals() as stop:  # SIGINT, SIGTERM: end in order (kernel.app.interrupt)
-        return await _run(manifest, journal_dir, progress, stop)
+        return await _run(manifest, journal_dir, progress, stop, hook)
 
 
 async def _run(manifest: Manifest, journal_dir: Path | None, progress: CycleProgress | None,
-               stop: StopSignals) -> dict[str, Any]:
+               stop: StopSignals,
+               hook: Callable[[RunContext], bool] | None) -> dict[str, Any]:
     clock = VirtualClock()
     context = open_run(manifest, clock, journal_dir, progress)
     cell = context.cell
@@ -55,6 +60,8 @@ async def _run(manifest: Manifest, journal_dir: Path | None, progress: CycleProg
             await cell.controller.tick()
             context.recorder.hand_over_if_due()
             report_progress(context, progress)
+            if hook is not None and hook(context):
+                break
             clock.advance(period)
     finally:
         cell.controller.cut_short(cut_short_reason(context, stop, []))

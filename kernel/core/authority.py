@@ -13,6 +13,7 @@ import numpy as np
 from assurance.clock import ClockSync
 from assurance.fallback import Mode, QueueAction
 from assurance.handshake import evaluate
+from assurance.plausibility import judge
 from assurance.reasons import ReasonCode as R
 from kernel.core.effects import Motion, Retreat, Setpoint
 from kernel.core.events import (
@@ -59,12 +60,43 @@ def on_state(state: CoreState, event: StateEvent) -> None:
         return
     if q.shape[0] < state.measured_q.shape[0]:  # a state without the gripper keeps its last value
         q = np.concatenate([q, state.measured_q[q.shape[0]:]])
-    state.measured_q = q
+    # The device answered: the state watchdog (silence) is fed even by a sample that is not
+    # believed; an implausible one is a fault of its own and never becomes the measurement.
     state.measured_t = state.t
+    if _plausible(state, q, event.qd):
+        state.measured_q = q
     if event.force_residual is not None:
         state.motion.force = event.force_residual
         _check_force(state, event.force_residual)
     _check_envelope(state, event.force_residual)
+
+
+def _plausible(state: CoreState, q: np.ndarray, reported: tuple[float, ...] | None) -> bool:
+    """Judge the sample's arm joints (:mod:`assurance.plausibility`); an implausible one is
+    STATE_IMPLAUSIBLE: SAFE_HOLD where the arm was last plausibly measured."""
+    limits, bounds = state.config.limits, state.plausibility
+    if bounds is None or q.shape[0] != limits.dim:
+        return True  # unreachable: the state is built with its bounds; shapes are the loader's
+    arm = limits.arm_mask
+    verdict = judge(state.plausible, state.t, q[arm], _arm_velocity(reported, arm), bounds)
+    state.plausible = verdict.track
+    if verdict.finding is None:
+        return True
+    state.fire(R.STATE_IMPLAUSIBLE, detail=verdict.finding.describe())
+    return False
+
+
+def _arm_velocity(reported: tuple[float, ...] | None, arm: np.ndarray) -> np.ndarray | None:
+    """The reported velocities of the arm's joints, if the sample has them (with or without
+    the gripper's); otherwise None: a driver that reports none is judged on positions."""
+    if not reported:
+        return None
+    qd = np.asarray(reported, dtype=float)
+    if qd.shape[0] == arm.shape[0]:
+        qd = qd[arm]
+    elif qd.shape[0] != int(arm.sum()):
+        return None
+    return qd
 
 
 def _check_envelope(state: CoreState, force: float | None) -> None:

@@ -11,6 +11,7 @@ from assurance.cartesian import CartesianMapper
 from assurance.handshake import AllowList, ClientHello, Session
 from assurance.kinematics import ArmKinematics, WorkspaceBox
 from assurance.limits import JointLimits
+from assurance.plausibility import Tolerances
 from assurance.reasons import ReasonCode
 from assurance.watermarks import WatermarkConfig
 from skills.contact import ContactConfig
@@ -105,6 +106,8 @@ class CoreConfig:
     motion: MotionConfig = field(default_factory=MotionConfig)
     envelope: TrialBounds | None = None
     """A trial's envelope (needs ``kinematics`` for the workspace box); None: no trial."""
+    plausibility: Tolerances = field(default_factory=Tolerances)
+    """The noise and timing a state sample may carry and still be judged plausible."""
 
     def __post_init__(self) -> None:
         if self.control_period_ns <= 0:

@@ -17,6 +17,7 @@ from assurance.fallback import MODES, FallbackMachine, Mode, QueueAction, Transi
 from assurance.gates import AdmissionContext
 from assurance.handshake import Session
 from assurance.identity import ChunkMemory, ObservationLog
+from assurance.plausibility import Bounds, Track
 from assurance.queue import ActionQueue, SentRow
 from assurance.reasons import ReasonCode
 from assurance.watermarks import Watermarks
@@ -65,6 +66,9 @@ class CoreState:
     parked: dict[int, Any] = field(default_factory=dict)
     """Chunks waiting for a job's result, by job id (see :mod:`kernel.core.admit`)."""
     jobs_issued: int = 0
+    plausible: Track | None = None
+    """The last plausible state sample and what followed it (:mod:`assurance.plausibility`)."""
+    plausibility: Bounds | None = None
 
     @classmethod
     def initial(cls, config: CoreConfig) -> CoreState:
@@ -76,6 +80,8 @@ class CoreState:
             memory=ChunkMemory(config.memory_capacity), motion=initial_motion(config),
         )
         state.watermarks = Watermarks(config.watermarks)
+        state.plausibility = Bounds.of(config.limits, config.control_period_ns,
+                                       config.plausibility)
         return state
 
     # -- views ------------------------------------------------------------------------------
@@ -97,7 +103,9 @@ class CoreState:
         return self.card.policy.controller_mode or self.config.client.controller_mode
 
     def hold_target(self) -> np.ndarray:
-        """Where a hold that starts now holds: the measured state, inside the limits."""
+        """Where a hold that starts now holds: the measured state, inside the limits. Only
+        a plausible sample is ever measured (:func:`kernel.core.authority.on_state`), so a
+        hold never chases a glitched reading."""
         return self.config.limits.clip(self.measured_q)
 
     def context(self) -> AdmissionContext:

@@ -16,6 +16,8 @@ from __future__ import annotations
 import threading
 from typing import Any
 
+import msgspec
+
 from drivers.base import Driver
 from drivers.sim.driver import SimDriver
 from kernel.manifest import Manifest, ManifestError
@@ -23,6 +25,7 @@ from stubs.fault_control import FaultControlServer
 from stubs.plant.brake import BrakedPlant
 from stubs.plant.mujoco_plant import MujocoPlant
 from stubs.plant.world_port import world_handlers
+from stubs.reading_glitch import ReadingGlitch
 
 CONTROL_HOST = "127.0.0.1"
 """Loopback only: the control port has no authentication, it is test tooling."""
@@ -62,7 +65,9 @@ class SimWorld:
         self._steps = period_ns // self.plant.timestep_ns
         self._lock = threading.Lock()
         self.brake = BrakedPlant(self.plant)
-        self._driver = SimDriver(self.brake, lock=self._lock)  # type: ignore[arg-type]
+        self.glitch = ReadingGlitch()
+        reported = _Reported(self.brake, self.glitch)
+        self._driver = SimDriver(reported, lock=self._lock)  # type: ignore[arg-type]
         self.control: FaultControlServer | None = None
         if control_port:
             self.control = FaultControlServer(CONTROL_HOST, control_port,
@@ -83,6 +88,10 @@ class SimWorld:
         with self._lock:
             self.plant.respawn_peg()
 
+    def inject(self, fault: str, **fields: Any) -> dict[str, Any]:
+        """What the control port answers, in process (a lockstep run's hooks)."""
+        return {"ok": True, **(self._handlers()[fault]({"fault": fault, **fields}) or {})}
+
     def close(self) -> None:
         """Stop the control port; the plant lives and dies with the process."""
         if self.control is not None:
@@ -100,4 +109,19 @@ class SimWorld:
                 return {"engaged": self.brake.engaged, "ignored": self.brake.ignored}
 
         return {**world_handlers(self.plant, self._lock), "brake": brake,
-                "brake_state": brake_state}
+                "brake_state": brake_state, "reading_glitch": self.glitch.start}
+
+
+class _Reported:
+    """The plant as its sensors report it: an injected reading glitch shows in ``state()``
+    (what the driver reads), never in what the plant does or what the ground truth says."""
+
+    def __init__(self, plant: BrakedPlant, glitch: ReadingGlitch) -> None:
+        self._plant, self._glitch = plant, glitch
+
+    def state(self) -> Any:
+        state = self._plant.state()
+        return msgspec.structs.replace(state, q=self._glitch.apply(state.q))
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._plant, name)

@@ -87,6 +87,8 @@ class EmulatedDrive:
         self.cycle_us = 0
         """0x1006 as the master wrote it: the SYNC period the drive expects."""
         self.actual = (encoder.counts(q0), 0, 0)  # position, velocity (counts), torque (‰)
+        self.reported_position = self.actual[0]
+        """What 0x6064 reports: the actual position, unless a reading glitch is injected."""
         self._lock = lock
         self._hold_q: float | None = q0
         self._nmt_state = node.nmt.state
@@ -106,7 +108,7 @@ class EmulatedDrive:
         self._live: dict[int, Callable[[], int]] = {
             Index.STATUSWORD: self.statusword,
             Index.MODES_DISPLAY: lambda: int(self.mode),
-            Index.POSITION_ACTUAL: lambda: self.actual[0],
+            Index.POSITION_ACTUAL: lambda: self.reported_position,
             Index.VELOCITY_ACTUAL: lambda: self.actual[1],
             Index.TORQUE_ACTUAL: lambda: self.actual[2],
             Index.ERROR_CODE: lambda: self.error_code,
@@ -354,8 +356,11 @@ class EmulatedDrive:
         low, high = self._limits
         return min(max(counts, low), high) if low < high else counts
 
-    def update_actual(self, q: float, qd: float, effort: float) -> None:
+    def update_actual(self, q: float, qd: float, effort: float, glitch: float = 0.0) -> None:
+        """The axis's new state; ``glitch``: an injected offset of what it reports (the
+        drive's own supervision keeps using the true position)."""
         position = self.encoder.counts(q)
+        self.reported_position = self.encoder.counts(q + glitch) if glitch else position
         velocity = round(qd * self.encoder.direction * self.encoder.counts_per_unit)
         torque = round(1e6 * effort * self.encoder.direction / max(self.rated_torque, 1))
         self.actual = (position, velocity, max(-32768, min(32767, torque)))

@@ -45,6 +45,7 @@ from stubs.cia402_drive.profile import (
 )
 from stubs.cia402_drive.udp_bus import confine_to_host, fileno, widen_receive_buffer
 from stubs.plant.base import KinematicPlant, Plant
+from stubs.reading_glitch import ReadingGlitch
 
 log = logging.getLogger(__name__)
 
@@ -131,8 +132,11 @@ class DriveEmulator:
             "heartbeat_stop": self._fault_heartbeat_stop,
             "quick_stop": self._fault_quick_stop,
             "ignore_mode": self._fault_ignore_mode,
+            "reading_glitch": self._fault_reading_glitch,
             "clear": self._fault_clear,
         }
+        self.glitch = ReadingGlitch()
+        """An injected reading glitch: one SYNC's (or a duration's) reported positions."""
 
     # -- lifetime ------------------------------------------------------------------------------
 
@@ -276,9 +280,10 @@ class DriveEmulator:
         if steps:
             self.plant.step(steps)
         state = self.plant.state()
-        for drive, q, qd, effort in zip(self._joints, state.q, state.qd, state.effort,
-                                        strict=True):
-            drive.update_actual(q, qd, effort)
+        glitched = self.glitch.apply(state.q)
+        for drive, q, qd, effort, reported in zip(self._joints, state.q, state.qd, state.effort,
+                                                  glitched, strict=True):
+            drive.update_actual(q, qd, effort, reported - q)
         if self.gripper is not None:
             self.gripper.measure(state)
 
@@ -344,8 +349,12 @@ class DriveEmulator:
     def _fault_ignore_mode(self, node: int | None = None) -> None:
         self.drive(node).mode_locked = True
 
+    def _fault_reading_glitch(self, **request: Any) -> None:
+        self.glitch.start(request)
+
     def _fault_clear(self) -> None:
         """Remove injected conditions; a latched FAULT stays until the master resets it."""
+        self.glitch.clear()
         for drive in self.drives.values():
             drive.mode_locked = False
             drive.machine.quick_stop_input(active=False)

@@ -88,7 +88,7 @@ class Bus:
         with self.lock:
             expired = self.watchdog.expired(self.servos, now)
             if expired:
-                self.link.refresh(self.servos)  # they stop where they are now
+                self.link.refresh(self.servos, reported=False)  # they stop where they are
                 for servo_id in expired:
                     self.servos[servo_id].trip_watchdog()
                 self.link.halt(self.servos)
@@ -209,6 +209,7 @@ class Bus:
             "silent": self._inject_silent,
             "crc": self._inject_crc,
             "hardware_error": self._inject_hardware_error,
+            "reading_glitch": self.link.glitch.start,
             "clear": self._clear,
             "peek": self._peek,
             "motion": self._motion,
@@ -245,6 +246,7 @@ class Bus:
     def _clear(self, request: dict[str, Any]) -> None:
         """Undo every fault, as a power cycle would: errors cleared, torque off, Bus Watchdog
         off (RAM items restart at their defaults)."""
+        self.link.glitch.clear()
         with self.lock:
             self.faults = BusFaults()
             for servo in self.servos.values():
@@ -255,7 +257,7 @@ class Bus:
             self.link.apply(self.servos)
 
     def _settle_goals(self) -> None:
-        self.link.refresh(self.servos)
+        self.link.refresh(self.servos, reported=False)
         for servo in self.servos.values():
             present = servo.get(Addr.PRESENT_POSITION, 4, signed=True)
             servo.set(Addr.GOAL_POSITION, 4, present)

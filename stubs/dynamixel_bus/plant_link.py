@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 from stubs.dynamixel_bus.control_table import Addr, ServoTable
 from stubs.plant.realtime import RealtimeStepper
+from stubs.reading_glitch import ReadingGlitch
 from stubs.robot_model import GRIPPER_MAX_OPENING
 
 TICKS_PER_RAD = 4096 / (2.0 * math.pi)
@@ -72,16 +73,21 @@ class PlantLink:
         self.stepper = stepper
         self.ids = tuple(ids)
         self.gripper = gripper
+        self.glitch = ReadingGlitch()
+        """An injected reading glitch: what a read reports, never what the servo holds to."""
 
-    def refresh(self, servos: Mapping[int, ServoTable]) -> None:
-        """Copy the plant's measured state into every servo's present-value registers."""
+    def refresh(self, servos: Mapping[int, ServoTable], reported: bool = True) -> None:
+        """Copy the plant's measured state into every servo's present-value registers;
+        ``reported``: for a read the host asked for (an injected reading glitch shows), not
+        for the servos' own use of where they are (a stop, a power-on)."""
         with self.stepper.lock:
             state = self.stepper.plant.state()
+        q = self.glitch.apply(state.q) if reported else state.q
         for joint, servo_id in enumerate(self.ids):
             servo = servos[servo_id]
             qd = state.qd[joint] if state.qd else 0.0
             effort = state.effort[joint] if state.effort else 0.0
-            servo.set(Addr.PRESENT_POSITION, 4, rad_to_ticks(state.q[joint]))
+            servo.set(Addr.PRESENT_POSITION, 4, rad_to_ticks(q[joint]))
             servo.set(Addr.PRESENT_VELOCITY, 4, round(qd / RAD_S_PER_VELOCITY_UNIT))
             servo.set(Addr.PRESENT_CURRENT, 2, _current_units(effort))
             servo.set(Addr.MOVING, 1, int(abs(qd) > MOVING_THRESHOLD_RAD_S))

@@ -21,8 +21,11 @@ import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 
+import msgspec
+
 from stubs.fault_control import Handler
 from stubs.plant.base import Plant
+from stubs.reading_glitch import ReadingGlitch
 from stubs.ur_controller.dashboard import serve_dashboard, serve_script_port
 from stubs.ur_controller.frame import Frame, take_frame
 from stubs.ur_controller.io_board import GripperWiring, IOBoard
@@ -71,6 +74,8 @@ class URController:
         self.script = ControlScript(self.status, self.registers, plant,
                                     1.0 / config.cycle_hz, self.watchdogs)
         self.stalled = False
+        self.glitch = ReadingGlitch()
+        """An injected reading glitch: the frames report it, the arm does not move by it."""
         self.dashboard_stops = 0
         """Program stops the dashboard's ``stop`` started (tests ask over the control port)."""
         self._sessions: set[RTDESession] = set()
@@ -143,6 +148,7 @@ class URController:
                 SafetyMode.PROTECTIVE_STOP, (SafetyBit.PROTECTIVE_STOP,)),
             "estop": lambda _: self._emergency_stop(),
             "data_stall": lambda _: self._stall(),
+            "reading_glitch": self.glitch.start,
             "disconnect": lambda _: self._disconnect(),
             "speed_scaling": lambda request: self._set_speed_scaling(float(request["value"])),
             "clear": lambda _: self._clear(),
@@ -215,6 +221,7 @@ class URController:
             self.status.recover()
             self.io.lose_writes = 0
         self.stalled = False
+        self.glitch.clear()
         self.rtde.resume()
 
     # -- the control cycle ----------------------------------------------------------------------
@@ -243,7 +250,9 @@ class URController:
             self.script.step()
             self.io.drive_gripper(self.plant)
             self.plant.step(self._steps_per_cycle)
-            return take_frame(time.monotonic() - self._boot, self.plant.state(), self.status,
+            state = self.plant.state()
+            state = msgspec.structs.replace(state, q=self.glitch.apply(state.q))
+            return take_frame(time.monotonic() - self._boot, state, self.status,
                               self.registers, self.io, time.perf_counter() - started)
 
     def _watchdog_stop(self, watchdog: InputWatchdog) -> None:

@@ -89,6 +89,30 @@ def invalid_feedback_fault() -> ScenarioSpec:
     )
 
 
+def state_implausible_holds_where_plausible() -> ScenarioSpec:
+    glitched = q_at(2)
+    glitched[0] += 0.5  # 0.5 rad in 5 ms: 100 rad/s, a reading no joint of this arm can make
+    return ScenarioSpec(
+        name="state_implausible_holds_where_plausible",
+        description="A state sample 0.5 rad off 5 ms after a plausible one (a reading glitch: "
+                    "no joint moves 100 rad/s) is STATE_IMPLAUSIBLE: it never becomes the "
+                    "measured state, and the fallback holds where the arm was last plausibly "
+                    "measured (SAFE_HOLD). The samples after it are plausible again.",
+        events=[*_running(), st(45, glitched)],
+        until=70,
+        expect=[
+            {"kind": "transition", "machine": "fallback", "from": "RUNNING", "to": "SAFE_HOLD",
+             "trigger": "STATE_IMPLAUSIBLE", "t": 45},
+            {"kind": "tick", "t": 44, "sent.chunk_id": "C1"},
+            {"kind": "tick", "t": 46, "command": "hold", "owner": "fallback",
+             "reason": "STATE_IMPLAUSIBLE"},
+        ],
+        forbid=[{"kind": "tick", "t_min": 45, "sent.chunk_id": "C1"},
+                {"kind": "transition", "machine": "fallback", "t_max": 44},
+                {"kind": "transition", "machine": "fallback", "t_min": 46}],
+    )
+
+
 def watchdog_state_timeout() -> ScenarioSpec:
     early = [st(10, list(Q0)), st(20, list(Q0))]
     events = [e for e in _running() if not (e["kind"] == "state" and e["t"] > 50)] + early
@@ -243,6 +267,7 @@ def policy_cannot_authorize() -> ScenarioSpec:
 
 
 SCENARIOS = [ood_safe_hold, contact_anomaly_fallback, controller_reject_and_recovery,
-             invalid_feedback_fault, watchdog_state_timeout, recorder_failed,
+             invalid_feedback_fault, state_implausible_holds_where_plausible,
+             watchdog_state_timeout, recorder_failed,
              human_takeover_and_release, estop_wins_everywhere, guard_failed_missing_evidence,
              policy_cannot_authorize]
