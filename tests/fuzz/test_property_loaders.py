@@ -38,6 +38,7 @@ import typing
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
@@ -157,7 +158,30 @@ def test_mutated_manifests_load_or_are_refused(workdir: Path, data: st.DataObjec
     raw = data.draw(_damaged(text.encode()), label="bytes")
     path = workdir / "cell.toml"
     path.write_bytes(raw)
-    _check_preflight(path)
+    loaded = _check_preflight(path)
+    if loaded is not None:
+        _assert_usable(loaded, tomllib.loads(raw.decode()))
+
+
+def _assert_usable(loaded: Manifest, doc: dict[str, Any]) -> None:
+    """What "loaded" must mean, so that a loader accepting everything fails the property: the
+    arm's limits are finite, positive and ordered, and the numbers the file states are the
+    numbers loaded (a value refused is never replaced by a default)."""
+    limits = loaded.core.limits
+    arm = limits.arm_mask
+    assert np.all(limits.lower[arm] <= limits.upper[arm])
+    for rate in (limits.velocity[arm], limits.acceleration[arm]):
+        assert np.all(np.isfinite(rate)) and np.all(rate > 0), rate
+    robot = doc.get("robot", {})
+    for key, loaded_rates in (("velocity_limits", limits.velocity[arm]),
+                              ("acceleration_limits", limits.acceleration[arm])):
+        stated = robot.get(key)
+        if isinstance(stated, list) and len(stated) == arm.sum():
+            assert loaded_rates.tolist() == [float(v) for v in stated], key
+    for key, value in doc.get("policy", {}).items():
+        if key in {f.name for f in dataclasses.fields(PolicySettings)} and isinstance(
+                value, int | float) and not isinstance(value, bool):
+            assert getattr(loaded.policy, key) == value, f"policy.{key}"
 
 
 def _check_preflight(path: Path) -> Manifest | None:
