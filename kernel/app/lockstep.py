@@ -49,6 +49,7 @@ async def _run(manifest: Manifest, journal_dir: Path | None, progress: CycleProg
     link = standins.load(standins.POLICIES, "local")(cell.context, clock)
     period = cell.core.config.control_period_ns
     budget_ns = round(manifest.cell.cycle_timeout_s * 1e9) * manifest.cell.cycles
+    ended_by_hook = False
     try:
         await bring_up(context)
         link.connect()
@@ -61,10 +62,11 @@ async def _run(manifest: Manifest, journal_dir: Path | None, progress: CycleProg
             context.recorder.hand_over_if_due()
             report_progress(context, progress)
             if hook is not None and hook(context):
+                ended_by_hook = True
                 break
             clock.advance(period)
     finally:
-        cell.controller.cut_short(cut_short_reason(context, stop, []))
+        cell.controller.cut_short(cut_short_reason(context, stop, [], ended_by_hook))
         await cell.driver.aclose()
         cell.world.close()
         close_record(context)
