@@ -43,6 +43,7 @@ class Cell:
         self.config = core_config("FREE_SPACE")
         self.core = Core(self.config)
         self.t_ms = 0
+        self.q = np.asarray(self.config.initial_q, dtype=float)
         self.send(HandshakeEvent(t=0, offer=offer()))
         assert self.mode is Mode.RUNNING and self.core.state.session is not None
 
@@ -58,7 +59,16 @@ class Cell:
         self.send(OperatorEvent(t=self.at(), action=action))
 
     def measured(self, q: np.ndarray) -> None:
-        self.send(StateEvent(t=self.at(), q=tuple(q.tolist())))
+        self.q = np.asarray(q, dtype=float)
+        self.send(StateEvent(t=self.at(), q=tuple(self.q.tolist())))
+
+    def walk(self, q: np.ndarray, step_rad: float = 0.002) -> None:
+        """The arm moved to ``q`` as an arm can (2 mrad a millisecond: a reading that jumps
+        there at once is implausible, STATE_IMPLAUSIBLE, and never believed)."""
+        start = self.q
+        steps = max(1, int(np.ceil(np.max(np.abs(q - start)) / step_rad)))
+        for i in range(1, steps + 1):
+            self.measured(start + (q - start) * (i / steps))
 
     @property
     def mode(self) -> Mode:
@@ -73,11 +83,13 @@ class Cell:
 def test_validate_does_not_resume_with_a_joint_outside_its_limits(side: str) -> None:
     cell = Cell()
     limits = cell.config.limits
-    inside = limits.clip(cell.config.initial_q)
-    outside = inside.copy()
-    outside[2] = limits.upper[2] + 0.01 if side.startswith("above") else limits.lower[2] - 0.01
+    above = side.startswith("above")
+    outside = limits.clip(cell.config.initial_q)
+    outside[2] = limits.upper[2] + 0.001 if above else limits.lower[2] - 0.001
+    inside = outside.copy()  # a plausible step back across the limit
+    inside[2] = limits.upper[2] - 0.001 if above else limits.lower[2] + 0.001
     cell.operator(OperatorAction.TAKEOVER)
-    cell.measured(outside)  # the human left joint 2 beyond its limit
+    cell.walk(outside)  # the human left joint 2 beyond its limit
     cell.operator(OperatorAction.RELEASE)
     cell.operator(OperatorAction.ACCEPT_RECOVERY)
     for _ in range(5):  # ticks re-check; none may resume
