@@ -72,7 +72,8 @@ class CycleProgress:
             self._progress.console.print(text)
         elif self.structured:
             log.info("cycle done", cycle=result.index, of=self.cycles, verified=result.verified,
-                     detail=result.reason or None, depth_mm=round(result.depth_m * 1000, 1),
+                     detail=result.reason or None, depth_mm=None if result.depth_m is None
+                     else round(result.depth_m * 1000, 1),
                      duration_s=round(result.duration_s, 1))
         else:
             self.console.print(text)
