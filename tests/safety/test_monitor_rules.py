@@ -85,10 +85,13 @@ def test_a_joint_exactly_at_its_limits_is_inside_them() -> None:
 
 def test_the_monitors_limits_are_the_manifests_arm_limits() -> None:
     manifest = load_manifest(ROOT / "manifests" / "sim-ur5e.toml")
-    limits = Limits.from_manifest(manifest, SafetySettings(max_wrist_force_n=80.0))
+    safety = SafetySettings(max_wrist_force_n=80.0, position_margin_rad=0.02,
+                            velocity_margin=0.15)
+    limits = Limits.from_manifest(manifest, safety)
     core = manifest.core.limits
     arm = core.arm_mask
     assert limits.lower == tuple(core.lower[arm].tolist())
     assert limits.upper == tuple(core.upper[arm].tolist())
     assert limits.velocity == tuple(core.velocity[arm].tolist())
-    assert limits.max_force_n == 80.0
+    assert (limits.max_force_n, limits.position_margin, limits.velocity_margin) == (
+        80.0, 0.02, 0.15)
