@@ -15,11 +15,14 @@ from pathlib import Path
 
 import pytest
 
-from kernel.safety.checks import Breach, Sample, breaches
+from kernel.manifest import load_manifest
+from kernel.safety.checks import Breach, Limits, Sample, breaches
 from kernel.safety.heartbeat import HeartbeatReceiver
+from kernel.safety.settings import SafetySettings
 from tests.safety.test_monitor import LIMITS, SETTINGS, Clock, ScriptedWatch, _monitor
 
 NAN, INF = math.nan, math.inf
+ROOT = Path(__file__).resolve().parents[2]
 
 
 @pytest.fixture
@@ -68,3 +71,27 @@ def test_a_second_breach_while_the_first_persists_stops_the_arm_again(
     assert watch.stops == 2
     assert not monitor.stops[-1].repeated
     assert any(f.startswith("force") for f in monitor.stops[-1].findings)
+
+
+def test_a_device_reporting_another_number_of_velocities_is_lost() -> None:
+    found = breaches(Sample(q=(0.0,), qd=(0.0, 0.0), force_n=0.0), LIMITS)
+    assert [f.breach for f in found] == [Breach.DEVICE_LOST]
+
+
+def test_a_joint_exactly_at_its_limits_is_inside_them() -> None:
+    edges = [Sample(q=(q,), qd=(qd,), force_n=50.0) for q in (-1.0, 1.0) for qd in (-1.0, 1.0)]
+    assert all(breaches(sample, LIMITS) == [] for sample in edges)
+
+
+def test_the_monitors_limits_are_the_manifests_arm_limits() -> None:
+    manifest = load_manifest(ROOT / "manifests" / "sim-ur5e.toml")
+    safety = SafetySettings(max_wrist_force_n=80.0, position_margin_rad=0.02,
+                            velocity_margin=0.15)
+    limits = Limits.from_manifest(manifest, safety)
+    core = manifest.core.limits
+    arm = core.arm_mask
+    assert limits.lower == tuple(core.lower[arm].tolist())
+    assert limits.upper == tuple(core.upper[arm].tolist())
+    assert limits.velocity == tuple(core.velocity[arm].tolist())
+    assert (limits.max_force_n, limits.position_margin, limits.velocity_margin) == (
+        80.0, 0.02, 0.15)
