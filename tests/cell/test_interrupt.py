@@ -58,6 +58,19 @@ def _wait_for(warden: subprocess.Popen[bytes], done: object, what: str) -> None:
         time.sleep(0.05)
 
 
+def _reached(stderr: Path, cycle: int, step: str) -> bool:
+    """The run's JSON progress (--log-format json) says ``cycle`` is at ``step``."""
+    for line in stderr.read_bytes().splitlines():
+        try:
+            entry = json.loads(line)
+        except ValueError:
+            continue
+        if isinstance(entry, dict) and entry.get("event") == "progress" and (
+                entry.get("cycle"), entry.get("step")) == (cycle, step):
+            return True
+    return False
+
+
 def _ended(pids: set[int]) -> bool:
     return all(not Path(f"/proc/{pid}").exists() for pid in pids)
 
@@ -72,7 +85,7 @@ def test_a_signal_mid_cycle_ends_the_run_holding_the_arm(
     warden = _start(tmp_path, _cell(tmp_path))
     stderr = tmp_path / "stderr"
     try:
-        _wait_for(warden, lambda: b"cycle 2/2  pick approach" in stderr.read_bytes(),
+        _wait_for(warden, lambda: _reached(stderr, 2, "pick approach"),
                   "cycle 2 under way")
         children = process_tree(warden.pid) - {warden.pid}
         assert children, "the cell's children (job worker, policy server) are running"
@@ -115,7 +128,7 @@ def test_ctrl_c_ends_a_lockstep_run_in_order(tmp_path: Path,
     """The virtual clock's loop never yields to the event loop: the signal still reaches it."""
     warden = _start(tmp_path, _cell(tmp_path), 50, "--clock", "virtual")
     try:
-        _wait_for(warden, lambda: b"cycle 1/50  grasp" in (tmp_path / "stderr").read_bytes(),
+        _wait_for(warden, lambda: _reached(tmp_path / "stderr", 1, "grasp"),
                   "cycle 1 under way")
         os.killpg(warden.pid, signal.SIGINT)
         assert warden.wait(timeout=TIMEOUT_S) == 130
