@@ -36,6 +36,19 @@ START_TIMEOUT_S = 60.0
 RUN_TIMEOUT_S = 240.0
 
 
+def _cycle_under_way(log: Path) -> bool:
+    """The run's JSON progress lines (its stderr is a file: JSON logs) show cycle 1 begun."""
+    for line in log.read_bytes().splitlines():
+        try:
+            entry = json.loads(line)
+        except ValueError:
+            continue
+        if isinstance(entry, dict) and entry.get("event") == "progress" and (
+                entry.get("cycle") == 1):
+            return True
+    return False
+
+
 def _identity(driver: str, table: dict[str, Any]) -> str | None:
     return registry.load(driver).device_identity(table)
 
@@ -219,7 +232,7 @@ def test_a_second_warden_on_a_running_cell_exits_2_and_the_first_cycle_verifies(
         assert record is not None, (tmp_path / "first.log").read_text()
         # The second commands start once the first is up and moving (its bring-up, SDO
         # timeouts and all, is behind it): the lock refuses them before they touch anything.
-        while "cycle 1/1" not in (tmp_path / "first.log").read_text() and first.poll() is None:
+        while not _cycle_under_way(tmp_path / "first.log") and first.poll() is None:
             time.sleep(0.05)
         assert first.poll() is None, "the first run ended on its own before any second one " \
             f"started: {(tmp_path / 'first.log').read_text()}"
