@@ -131,7 +131,10 @@ def test_the_walk_through_at_a_terminal_interrupted_in_cycle_2_of_3(
     assert trial["ended"].endswith(f"{verified} of 3 cycles verified, cycle 2 unfinished, 1 not "
                                    "started"), trial
     assert trial["operator_socket"] == str(sock)
-    assert not sock.parent.exists()  # the directory the trial made for its socket is gone
+    if sock.parent == Path("/run/warden"):  # there and free (a host that ran the service):
+        assert not sock.exists()  # the trial served the default socket and removed it
+    else:
+        assert not sock.parent.exists()  # the directory the trial made for its socket is gone
 
 
 def _card_socket(tmp: Path, process: subprocess.Popen[str]) -> Path:
