@@ -101,6 +101,11 @@ class Driver(Protocol):
     and ``device_identity(table) -> str | None`` (the device the table addresses, one string
     shared by every table that names the same device: warden takes a lock on it before touching
     the device, so two wardens never drive one device; None: nothing another process can reach).
+
+    Optional hook: ``async def before_first_tick(self) -> None``, called once in ACTIVE right
+    before the control loop's timer starts, for the one blocking step that must come just
+    before the first setpoint (the UR driver arms the controller's RTDE watchdog there: done
+    inside the first tick, its round trip of 20-100 ms was a stall of the loop).
     """
 
     name: str

@@ -89,6 +89,13 @@ class ManagedDriver:
         await self._call("activate", self.driver.activate())
         self.state = DriverState.ACTIVE
 
+    async def before_first_tick(self) -> None:
+        """The driver's optional ``before_first_tick`` hook (drivers/base.py), in ACTIVE only;
+        a driver without it has nothing to do there."""
+        hook = getattr(self.driver, "before_first_tick", None)
+        if self.state is DriverState.ACTIVE and hook is not None:
+            await self._call("before_first_tick", hook())
+
     async def deactivate(self) -> None:
         self._require(DriverState.ACTIVE, "deactivate")
         await self._call("deactivate", self.driver.deactivate())

@@ -147,6 +147,13 @@ class URRTDEDriver:
         await self._read_checked(streaming=True)
         self._active, self._stopped = True, False
 
+    async def before_first_tick(self) -> None:
+        """Arm the controller's watchdog now, right before the loop's first tick, so that its
+        round trip is not a stall of the loop (the first setpoint follows within a period)."""
+        link = self._link_or_raise()
+        if self._watchdog_hz is not None and not link.watchdog.armed:
+            await self._arm_watchdog(link, self._watchdog_hz)
+
     async def read(self) -> StateSample:
         if self._stop_under_way() and self._last is not None:
             return self._last  # the device thread is busy stopping the arm: no new sample

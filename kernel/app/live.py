@@ -192,6 +192,9 @@ class _Loop:
         period = cell.core.config.control_period_ns
         budget_ns = round(manifest.cell.cycle_timeout_s * 1e9) * manifest.cell.cycles
         cell.controller.start()
+        # A device's one blocking step before streaming (the UR controller's watchdog) goes
+        # here, before the timer starts, not into the first tick.
+        await cell.driver.before_first_tick()
         async with PeriodicTimer(period, early_ns=EARLY_WAKE_NS) as timer:
             while not (cell.controller.finished or self.stop.requested
                        or cell.controller.record_failed) and cell.gateway.now_ns() < budget_ns:

@@ -111,3 +111,23 @@ async def test_the_stop_runs_while_the_ticks_go_on_and_its_failure_faults_the_dr
                     await asyncio.sleep(PERIOD_S)
             assert calls > 0
             assert arm.state is DriverState.FAULT and arm.fault is ReasonCode.WATCHDOG
+
+
+async def test_the_watchdog_is_armed_before_the_first_tick_not_by_it(
+    emulator: EmulatedController,
+) -> None:
+    """setWatchdog is a blocking round trip (20-100 ms against the emulator): sent with the
+    first setpoint it stalled the loop's first tick past a 50 ms state watchdog, a WATCHDOG
+    fault that cost a real-device run its cycle. The loop arms it before its timer starts
+    (``before_first_tick``); the first setpoint then finds it armed."""
+    emulator.clear()
+    driver = URRTDEDriver(URSettings(host=emulator.host, watchdog_periods=WATCHDOG_PERIODS))
+    async with active(driver, CONTROL) as arm:
+        assert _query(emulator, "status")["watchdogs"]["armed"] == {}
+        await arm.before_first_tick()
+        assert arm.state is DriverState.ACTIVE
+        armed = _query(emulator, "status")["watchdogs"]["armed"]
+        assert armed != {}  # the controller has it before any setpoint
+        q = (await arm.read()).q
+        assert (await arm.write(Command(kind=CommandKind.POSITION, q=q))).accepted
+        assert _query(emulator, "status")["watchdogs"]["armed"] == armed  # nothing re-armed
