@@ -186,12 +186,22 @@ class _Trial:
             text=True)
 
     def confirm(self) -> dict[str, Any]:
-        wait_for(lambda: self.socket.is_socket() or self.process.poll() is not None,
-                 "the trial's operator socket")
+        answers: list[dict[str, Any]] = []
+
+        def answered() -> bool:  # the socket file may be there a moment before it listens
+            if self.process.poll() is not None:
+                return True
+            try:
+                answers.append(send(str(self.socket), "status", 5.0))
+            except (FileNotFoundError, ConnectionRefusedError):
+                return False
+            return True
+
+        wait_for(answered, "the trial's operator socket")
         if self.process.poll() is not None:
             raise AssertionError(f"the trial exited {self.process.returncode}: "
                                  f"{self.process.stderr.read() if self.process.stderr else ''}")
-        before = send(str(self.socket), "status", 5.0)
+        before = answers[-1]
         assert before == {"ok": True, "run": "sim-ur5e-rtde",
                           "mode": "awaiting confirmation"}, before
         return send(str(self.socket), "confirm", 5.0)

@@ -104,7 +104,9 @@ async def test_the_stop_runs_while_the_ticks_go_on_and_its_failure_faults_the_dr
             applied = await arm.write(STOP)  # waited for the stall bound and raised, before
             assert applied.accepted and applied.q == last.q
             calls = 0
-            with pytest.raises(DriverError, match="no new RTDE data"):
+            # Which bound ends it depends on where the stall catches ur_rtde: the data's stall
+            # bound, or the stop's own deadline when stopJ itself is waiting.
+            with pytest.raises(DriverError, match=r"no new RTDE data|stop took longer than"):
                 while calls < 10_000:  # bounded: the stop fails within its stall bound
                     assert (await arm.read()).seq == last.seq  # no new sample meanwhile
                     calls += 1
