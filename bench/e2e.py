@@ -82,6 +82,8 @@ class _BenchGateway:
 
     def __init__(self, samples: int) -> None:
         self.core = _core()
+        self.q = self.core.config.initial_q.copy()
+        """Where the arm is: it follows every setpoint exactly (:meth:`run_ticks`)."""
         self.wanted = samples
         self.latencies: list[int] = []
         self.legs: list[tuple[int, int, int, int]] = []
@@ -111,10 +113,10 @@ class _BenchGateway:
         observation itself (one at a time, after each admission)."""
 
     def client_side_hello(self) -> ClientHello:
-        return self.core.config.client.hello(self.core.state.epoch)
+        return self.core.config.client.hello(self.core.status().epoch)
 
     def capture_observation(self) -> RobotSample:
-        return RobotSample(q=self.core.state.measured_q.copy(), task_phase="FREE_SPACE",
+        return RobotSample(q=self.q.copy(), task_phase="FREE_SPACE",
                            qd=np.zeros(6), wrench=np.zeros(6))
 
     async def run_ticks(self, period_s: float = 0.002) -> None:
@@ -123,6 +125,7 @@ class _BenchGateway:
             motion = self.core.step(TickEvent(t=self.now_ns())).motion
             if isinstance(motion, Setpoint):
                 self.core.step(StateEvent(t=self.now_ns(), q=motion.q))
+                self.q = np.array(motion.q)
             await asyncio.sleep(period_s)
 
     def _record_legs(self, event: ChunkEvent, t_obs: int) -> None:
@@ -189,9 +192,9 @@ async def _run_json(port: int, samples: int, horizon: int) -> list[int]:
 def _json_observation(gateway: _BenchGateway, observation_id: str) -> dict:
     t_obs = gateway.now_ns()
     gateway.feed(ObservationEvent(t=t_obs, observation_id=observation_id))
-    state = gateway.core.state
-    return {"observation_id": observation_id, "t_event": t_obs, "queue_epoch": state.epoch,
-            "task_phase": "FREE_SPACE", "q": state.measured_q.tolist(), "qd": [0.0] * 6,
+    return {"observation_id": observation_id, "t_event": t_obs,
+            "queue_epoch": gateway.core.status().epoch, "task_phase": "FREE_SPACE",
+            "q": gateway.q.tolist(), "qd": [0.0] * 6,
             "wrench": [0.0] * 6}
 
 

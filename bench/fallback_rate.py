@@ -80,7 +80,7 @@ class Walk:
             return True
         state = STATES[index]
         self._steer(context, state, into)
-        mode = str(context.cell.core.state.fallback.mode)
+        mode = str(context.cell.core.status().mode)
         # A faulted driver is no longer called (the stop path is not exercised): not counted.
         up = str(context.cell.driver.state) == "ACTIVE"
         if mode == state and state in self.done and up:
@@ -95,7 +95,7 @@ class Walk:
         gateway = context.cell.gateway
         ev = self.ev
         t = gateway.now_ns()
-        mode = str(context.cell.core.state.fallback.mode)
+        mode = str(context.cell.core.status().mode)
 
         def operator(action: Any) -> None:
             gateway.feed(ev.OperatorEvent(t=t, action=action))

@@ -64,7 +64,7 @@ class _LoseServer:
         self.pid: int | None = None
 
     def __call__(self, context: RunContext) -> bool:
-        if self.sent_ms is None and context.cell.core.state.task.phase is self.phase:
+        if self.sent_ms is None and context.cell.core.status().phase is self.phase:
             self.pid = _policy_server_pid()
             os.kill(self.pid, self.signum)
             self.sent_ms = context.cell.gateway.now_ns() * 1e-6

@@ -101,7 +101,7 @@ def build_cell(manifest: Manifest, config: CoreConfig, world: World, clock: Cloc
                             "('kinematics' or 'model')")
     core = Core(config)
     gateway = CoreGateway(core, clock, recorder)
-    limits = core.state.motion.planner_limits
+    limits = core.planner_limits
     truth = world.insertion_depth if world.has_ground_truth and manifest.cell.ground_truth \
         else None
     runner = assembly_runner(manifest, kinematics, limits, truth)
@@ -128,7 +128,7 @@ def cell_context(manifest: Manifest) -> CellContext:
         raise ManifestError(f"{manifest.path}: robot: the assembly task needs the arm's model "
                             "('kinematics' or 'model')")
     core = Core(manifest.core)
-    limits = core.state.motion.planner_limits
+    limits = core.planner_limits
     runner = assembly_runner(manifest, kinematics, limits, None)
     planner = Planner(kinematics, limits, runner.layout.tool_down)
     return CellContext(manifest, runner.layout, planner, kinematics,

@@ -234,7 +234,7 @@ class _Loop:
             return  # no systemd to tell: do not build a status line every tick
         cell = self.context.cell
         status = (f"cycle {min(len(cell.controller.results) + 1, cell.controller.cycles)}: "
-                  f"{cell.controller.runner.step} ({cell.core.state.fallback.mode})")
+                  f"{cell.controller.runner.step} ({cell.core.status().mode})")
         if status != self._status:
             self._status = status
             self.service.status(status)

@@ -58,10 +58,10 @@ def _unusable(path: Path) -> str:
 
 def status(cell: Cell) -> dict[str, Any]:
     """What ``warden operator status`` shows."""
-    state = cell.core.state
+    core = cell.core.status()
     controller = cell.controller
-    return {"run": cell.manifest.name, "mode": str(state.fallback.mode),
-            "cause": str(state.fallback.cause) if state.fallback.cause else None,
-            "phase": str(state.task.phase), "queue_epoch": state.epoch,
+    return {"run": cell.manifest.name, "mode": str(core.mode),
+            "cause": str(core.cause) if core.cause else None,
+            "phase": str(core.phase), "queue_epoch": core.epoch,
             "cycle": min(len(controller.results) + 1, controller.cycles),
             "step": str(controller.runner.step), "driver": str(cell.driver.state)}

@@ -196,11 +196,10 @@ def control_config(config: CoreConfig) -> ControlConfig:
 def report_progress(context: RunContext, progress: CycleProgress | None) -> None:
     if progress is None:
         return
-    state = context.cell.core.state
+    core = context.cell.core.status()
     controller = context.cell.controller
     progress.update(min(len(controller.results) + 1, controller.cycles),
-                    str(context.cell.controller.runner.step), str(state.task.phase),
-                    str(state.fallback.mode))
+                    str(context.cell.controller.runner.step), str(core.phase), str(core.mode))
 
 
 def finish(context: RunContext, extra: dict[str, Any]) -> dict[str, Any]:

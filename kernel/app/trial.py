@@ -156,8 +156,7 @@ class TrialBound:
     reason: str = ""
 
     def __call__(self, context: RunContext) -> bool:
-        state = context.cell.core.state
-        if state.fallback.cause is ReasonCode.ENVELOPE:
+        if context.cell.core.status().cause is ReasonCode.ENVELOPE:
             self.reason = "the envelope was reached (ENVELOPE): the arm stopped"
         elif context.heartbeat is not None and context.heartbeat.last_error is not None:
             self.reason = (f"the safety monitor stopped taking warden's heartbeat "

@@ -15,6 +15,7 @@ from typing import Any
 import msgspec
 
 from assurance.fallback import Mode
+from assurance.reasons import ReasonCode
 from kernel.core import authority
 from kernel.core.admit import admit, on_computed
 from kernel.core.config import CoreConfig
@@ -44,6 +45,7 @@ from kernel.core.tick import tick
 from skills.contact import ContactState
 from skills.phases import TaskPhase
 from skills.planner import MoveStatus
+from skills.trajectory import MotionLimits
 
 
 class TimeWentBackwards(ValueError):
@@ -72,10 +74,14 @@ _HANDLERS: dict[type, Callable[[CoreState, Any], None]] = {
 
 
 class CoreStatus(msgspec.Struct, frozen=True, kw_only=True):
-    """A read-only summary for the task that sequences the core (what it may wait on)."""
+    """What the shell may know of the core: a read-only copy, taken when asked. The task that
+    sequences the core waits on it; the operator socket, the service status and a trial's
+    bounds report from it."""
 
     phase: TaskPhase
     mode: Mode
+    cause: ReasonCode | None
+    """The trigger of the fallback mode the core is in (None while it runs undisturbed)."""
     epoch: int
     move_id: int
     move: MoveStatus
@@ -85,9 +91,18 @@ class CoreStatus(msgspec.Struct, frozen=True, kw_only=True):
 
 
 class Core:
+    """The core. Its state is private: the shell reads :meth:`status`, and changes it only by
+    :meth:`step`, so every change is an event a journal records and a replay repeats."""
+
     def __init__(self, config: CoreConfig) -> None:
         self.config = config
-        self.state = CoreState.initial(config)
+        self._state = CoreState.initial(config)
+
+    @property
+    def planner_limits(self) -> MotionLimits:
+        """The limits the core plans classical moves within (fixed by the configuration; the
+        task's planner plans its approach with the same)."""
+        return self._state.motion.planner_limits
 
     def step(self, event: Event) -> Step:
         """Apply one event; a :class:`TickEvent` runs a control tick.
@@ -95,7 +110,7 @@ class Core:
         Raises:
             TimeWentBackwards: ``event`` is older than the last one.
         """
-        state = self.state
+        state = self._state
         if event.t < state.t:
             raise TimeWentBackwards(f"event at {event.t} ns after {state.t} ns")
         state.t = event.t
@@ -106,7 +121,16 @@ class Core:
         return step
 
     def status(self) -> CoreStatus:
-        state, motion = self.state, self.state.motion
-        return CoreStatus(phase=state.task.phase, mode=state.fallback.mode, epoch=state.epoch,
-                          move_id=motion.move_id, move=motion.move_status,
+        state, motion = self._state, self._state.motion
+        fallback = state.fallback
+        return CoreStatus(phase=state.task.phase, mode=fallback.mode, cause=fallback.cause,
+                          epoch=state.epoch, move_id=motion.move_id, move=motion.move_status,
                           contact=motion.contact.state, parked=len(state.parked))
+
+    def inspect_state(self) -> CoreState:
+        """The live, mutable state, for tests and offline tools that check the core's inner
+        workings (the queue's rows, the duplicate memory, the last setpoint): what no status
+        should carry. Never for the shell (tests/runtime/test_core_status.py checks): a reader
+        there would couple the shell to the core's internals, and a writer would change a
+        decision without an event, which no journal records and no replay repeats."""
+        return self._state

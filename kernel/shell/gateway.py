@@ -41,7 +41,9 @@ class CoreGateway:
         self.recorder = recorder
         self.listeners: list[Listener] = []
         self._handlers: dict[type, list[Callable[[Any], None]]] = {}
-        self.robot = RobotSample(q=core.state.measured_q.copy(), task_phase=core.state.task.phase)
+        # Before the first sample, the arm is where the configuration starts it (a gateway
+        # opens on a core that has not stepped yet).
+        self.robot = RobotSample(q=core.config.initial_q.copy(), task_phase=core.status().phase)
         self.closed = False
 
     def now_ns(self) -> int:
@@ -86,7 +88,7 @@ class CoreGateway:
         return self.core.status()
 
     def client_side_hello(self) -> ClientHello:
-        return self.core.config.client.hello(self.core.state.epoch)
+        return self.core.config.client.hello(self.core.status().epoch)
 
     def capture_observation(self) -> RobotSample:
         return self.robot
@@ -94,5 +96,5 @@ class CoreGateway:
     def observe_robot(self, q: np.ndarray, qd: np.ndarray, wrench: np.ndarray,
                       gripper: float | None) -> None:
         """What the next observation will carry (the control tick updates it each period)."""
-        self.robot = RobotSample(q=q, task_phase=str(self.core.state.task.phase), qd=qd,
+        self.robot = RobotSample(q=q, task_phase=str(self.core.status().phase), qd=qd,
                                  wrench=wrench, gripper=gripper)

@@ -66,7 +66,7 @@ class LocalPolicyLink:
         gateway.on(RequestObservation, self._on_request)
 
     def connect(self) -> None:
-        epoch = self.gateway.core.state.epoch
+        epoch = self.gateway.status().epoch
         offer = msgspec.structs.replace(self.config.offer, queue_epoch=epoch)
         self.gateway.feed(HandshakeEvent(t=self.gateway.now_ns(),
                                          offer=msgspec.to_builtins(offer)))
@@ -98,7 +98,7 @@ class LocalPolicyLink:
         actions = self.config.policy.actions(q, lead_ns * 1e-9, self.rng, qd)
         if self._output is not None:
             actions = self._output(q, actions)
-        epoch = self.gateway.core.state.epoch
+        epoch = self.gateway.status().epoch
         sequence = next(self._sequence)
         return Proposal(
             chunk_id=f"local-e{epoch}-s{sequence}", sequence=sequence, queue_epoch=epoch,

@@ -104,7 +104,7 @@ class GlitchCampaign:
     # -- when ------------------------------------------------------------------------------
 
     def _phase(self, cell: Any) -> str | None:
-        state = cell.core.state
+        state = cell.core.inspect_state()  # the queue's pending rows: no status carries them
         if state.fallback.mode == "SAFE_HOLD":
             return HOLD
         if state.fallback.mode != "RUNNING":
@@ -149,12 +149,12 @@ class GlitchCampaign:
         else:
             glitch.a0 = np.zeros_like(qd0)
         glitch.excursion = np.zeros_like(q0)
-        glitch.modes = [str(cell.core.state.fallback.mode)]
+        glitch.modes = [str(cell.core.status().mode)]
         self._open.append(glitch)
         self._last_truth = None
 
     def _measure(self, cell: Any, now: int, truth: tuple[int, np.ndarray, np.ndarray]) -> None:
-        mode = str(cell.core.state.fallback.mode)
+        mode = str(cell.core.status().mode)
         for glitch in list(self._open):
             if glitch.q0 is None or glitch.excursion is None:
                 continue

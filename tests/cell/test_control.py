@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+from assurance.fallback import Mode
 from assurance.reasons import ReasonCode
 from drivers.base import Applied, Command, CommandKind
 from kernel.app.live import task_failed
@@ -113,13 +114,13 @@ def test_a_refusing_device_stops_the_arm_through_the_core(tmp_path: Path) -> Non
         recording.refuse = True
         for _ in range(3):
             await controller.tick()
-        state = context.cell.core.state
-        assert str(state.fallback.mode) == "CONTROLLER_STOP"
-        assert state.fallback.cause is ReasonCode.CONTROLLER_REJECT
+        status = context.cell.core.status()
+        assert status.mode is Mode.CONTROLLER_STOP
+        assert status.cause is ReasonCode.CONTROLLER_REJECT
         assert recording.written[-1].kind is CommandKind.STOP
         recording.refuse = False
         await controller.tick()
-        assert state.controller_ok  # the device accepts again: the controller reports ok
+        assert context.cell.core.inspect_state().controller_ok  # the device accepts again
 
     _run(context, scenario)
 
@@ -147,12 +148,12 @@ def test_a_dead_policy_link_task_is_a_lost_link_for_the_core(tmp_path: Path) -> 
     gateway = context.cell.gateway
     try:
         gateway.feed(HandshakeEvent(t=gateway.now_ns(), offer=offer_for(context.manifest)))
-        assert context.cell.core.state.session is not None
+        assert context.cell.core.inspect_state().session is not None
         failures: list[str] = []
         task_failed(context, failures, "policy-link", ConnectionResetError("peer vanished"))
-        state = context.cell.core.state
         assert failures == ["policy-link: ConnectionResetError: peer vanished"]
-        assert state.session is None and str(state.fallback.mode) == "DEGRADED"
+        assert context.cell.core.inspect_state().session is None
+        assert context.cell.core.status().mode is Mode.DEGRADED
     finally:
         context.cell.world.close()
         context.recorder.close()

@@ -59,12 +59,12 @@ class FaultAfterApproach:
         now = cell.gateway.now_ns()
         if self.injected_ns is None:
             if cell.controller.runner.step == "pre-contact" and (
-                    cell.core.state.queue.pending_rows(now) > 0):
+                    cell.core.inspect_state().queue.pending_rows(now) > 0):
                 cell.world.inject(self.fault, **self.fields)
                 self.injected_ns = now
             return False
         if self.fallback_ns is None:
-            if cell.core.state.fallback.mode != "RUNNING":
+            if cell.core.status().mode != "RUNNING":
                 self.fallback_ns = now
             return (now - self.injected_ns) * 1e-9 > self.give_up_s
         since = (now - self.fallback_ns) * 1e-9

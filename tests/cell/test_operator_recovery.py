@@ -99,7 +99,7 @@ def _context(manifest: Manifest) -> CellContext:
     """What the reference server needs of a cell: the task's layout and the arm's model."""
     kinematics = manifest.core.kinematics
     assert kinematics is not None
-    limits = Core(manifest.core).state.motion.planner_limits
+    limits = Core(manifest.core).planner_limits
     layout = task_settings(manifest).layout()
     planner = Planner(kinematics, limits, layout.tool_down)
     return CellContext(manifest, layout, planner, kinematics, None)  # type: ignore[arg-type]

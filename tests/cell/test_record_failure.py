@@ -111,7 +111,7 @@ def test_a_disk_failing_mid_run_stops_the_arm_and_the_report_matches_the_files(
         assert stop["to"] == "CONTROLLER_STOP"
         ticks = [line for line in lines if line["kind"] == "tick" and line["t"] >= stop["t"]]
         assert ticks and all(t["command"] == "stop" for t in ticks)
-        assert hook.context.cell.core.state.fallback.mode == "CONTROLLER_STOP"
+        assert hook.context.cell.core.status().mode == "CONTROLLER_STOP"
         # The reserve is no help on a disk that refuses every write: the tail is lost, and
         # the report says so rather than what the recorder meant to write.
         assert journal["tail_written"] is False and text in journal["tail_error"]

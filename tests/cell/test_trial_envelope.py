@@ -97,7 +97,7 @@ def test_speed_scale_scales_the_limits_the_core_and_the_driver_use(tmp_path: Pat
     core = Core(manifest.core)
     arm = core.config.limits.arm_mask
     assert np.allclose(core.config.limits.velocity[arm], scaled)
-    assert np.allclose(core.state.motion.planner_limits.velocity, scaled)
+    assert np.allclose(core.planner_limits.velocity, scaled)
     assert np.allclose(control_config(core.config).v_max, scaled)  # the driver's
     summary, lines = _lockstep(manifest, tmp_path / "runs")
     assert summary["cycles"]["verified"] == 1

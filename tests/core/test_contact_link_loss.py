@@ -33,7 +33,7 @@ def descending(drive: Drive) -> float:
     """Start a 5 cm descent from where the tool is and run it for 0.1 s; the tool's height."""
     drive.tick(follow=True)
     kinematics, arm = drive.core.config.kinematics, drive.core.config.limits.arm_mask
-    pose = kinematics.forward(drive.core.state.measured_q[arm])
+    pose = kinematics.forward(drive.core.inspect_state().measured_q[arm])
     drive.feed(InsertEvent, xy=tuple(pose.position[:2]), z_end=float(pose.position[2]) - 0.05,
                rotation=tuple(pose.rotation.ravel()))
     drive.tick(50, follow=True)

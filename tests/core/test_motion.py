@@ -119,7 +119,7 @@ def test_a_stop_reaches_the_device_whatever_was_measured(measured: list[float]) 
     drive.feed(OperatorEvent, action="estop")
     stop = drive.tick()
     assert isinstance(stop, Stop)
-    commanded = drive.core.state.motion.commanded
+    commanded = drive.core.inspect_state().motion.commanded
     limits = drive.core.config.limits
     assert np.all(commanded >= limits.lower) and np.all(commanded <= limits.upper)
 

@@ -57,7 +57,7 @@ def test_contact_targets_move_no_joint_faster_than_its_velocity_limit() -> None:
                    {"kinematics": "ur5e", "velocity_limits": [SLOW] * 6})
     drive.tick(follow=True)
     kinematics, arm = drive.core.config.kinematics, drive.core.config.limits.arm_mask
-    pose = kinematics.forward(drive.core.state.measured_q[arm])
+    pose = kinematics.forward(drive.core.inspect_state().measured_q[arm])
     drive.feed(InsertEvent, xy=tuple(pose.position[:2]), z_end=float(pose.position[2]) - 0.05,
                rotation=tuple(pose.rotation.ravel()))
     start = len(drive.motions)

@@ -173,10 +173,10 @@ def test_the_core_holds_where_the_arm_was_last_plausibly_measured() -> None:
         holds.append(core.step(TickEvent(t=t)).motion)
         t += period
     transitions = [line for line in step.lines if getattr(line, "trigger", None)]
-    assert core.state.fallback.mode is Mode.SAFE_HOLD
-    assert core.state.fallback.cause == "STATE_IMPLAUSIBLE"
+    assert core.status().mode is Mode.SAFE_HOLD
+    assert core.status().cause == "STATE_IMPLAUSIBLE"
     assert transitions == []  # one transition, at the first glitched sample only
-    assert np.allclose(core.state.measured_q, home)
+    assert np.allclose(core.inspect_state().measured_q, home)
     assert all(isinstance(m, Setpoint) and np.allclose(m.q, home) for m in holds)
 
 

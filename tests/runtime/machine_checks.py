@@ -105,7 +105,7 @@ class SentCommandChecks:
             event("setpoint within 0.05 rad of a position limit")
         self._check_rates()
         age_ms = self.next_tick_ms - command.t_obs / 1e6
-        policy = self.core.state.card.policy
+        policy = self.core.inspect_state().card.policy
         unc_ms = self.config.clock_uncertainty_ns / 1e6
         assert age_ms + unc_ms <= policy.max_action_age_ns / 1e6 + 1e-6
 

@@ -88,7 +88,7 @@ def tick(core: Core, t_ns: int) -> tuple[Ticked, list[Line]]:
     """Run the control tick at ``t_ns``: what went out, and the lines it produced."""
     step = core.step(TickEvent(t=t_ns))
     line = next(line for line in step.lines if isinstance(line, TickLine))
-    row = core.state.last_setpoint
+    row = core.inspect_state().last_setpoint
     if line.sent is None or row is None:
         return Ticked(None, None, None, step.motion, line.reason), list(step.lines)
     return Ticked(line.sent, np.asarray(row.q), row.t_obs, step.motion,

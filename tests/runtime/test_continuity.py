@@ -49,8 +49,8 @@ def test_the_setpoints_sent_across_a_new_epoch_stay_inside_the_acceleration_limi
     feed(core, chunk_event(0, chunk_fields("C1", 1, 0, "FREE_SPACE", "O1", 0, 0, moving)))
     sent: dict[object, np.ndarray] = {}
     _sent_until(core, 0, 10, sent)
-    feed(core, HandshakeEvent(t=11 * MS, offer=offer(queue_epoch=core.state.epoch)))
-    assert core.state.epoch == 1 and not core.state.queue.pending_rows(11 * MS)
+    feed(core, HandshakeEvent(t=11 * MS, offer=offer(queue_epoch=core.status().epoch)))
+    assert core.status().epoch == 1 and not core.inspect_state().queue.pending_rows(11 * MS)
     last = list(sent.values())[-1]
     stopping = np.repeat(last[None, :], 2, axis=0)  # the policy now says: stay here
     lines = feed(core, chunk_event(11, chunk_fields("C2", 2, 1, "FREE_SPACE", "O1", 0, 11,

@@ -147,7 +147,7 @@ class CoreMachine(SentCommandChecks, RuleBasedStateMachine):
     # -- chunks --------------------------------------------------------------------------------
 
     def _start(self) -> np.ndarray:
-        return (self.run[-1][2] if self.run else self.core.state.measured_q)[:6]
+        return (self.run[-1][2] if self.run else self.core.inspect_state().measured_q)[:6]
 
     def _fresh_observation(self) -> tuple[str, int]:
         """The latest observation, or a new one if it is old or already answered (a sound
@@ -173,24 +173,24 @@ class CoreMachine(SentCommandChecks, RuleBasedStateMachine):
     def _current(self, actions: np.ndarray, lead: int = 0, sequence: int | None = None,
                  **overrides: object) -> tuple[dict, int]:
         """A chunk for the current epoch and phase, conditioned on a fresh observation."""
-        state = self.core.state
+        status = self.core.status()
         name, obs_t = self._fresh_observation()
         if sequence is None:
             self.sequence += 1
             sequence = self.sequence
-        fields = chunk_fields(self._next_id(), sequence, state.epoch,
-                              str(state.task.phase), name, obs_t, self.t_ms + lead, actions,
+        fields = chunk_fields(self._next_id(), sequence, status.epoch,
+                              str(status.phase), name, obs_t, self.t_ms + lead, actions,
                               **overrides)
         return fields, sequence
 
     @rule(data=st.data())
     def chunk(self, data: st.DataObject) -> None:
         """Anything: unknown observations, other phases and epochs, late or early, fast."""
-        state = self.core.state
+        status = self.core.status()
         self.sequence += 1
         obs = data.draw(st.sampled_from([*self.observations[-3:], ("O-unknown", 0)]))
-        phase = data.draw(st.sampled_from([str(state.task.phase), "PRE_CONTACT", "FREE_SPACE"]))
-        epoch = state.epoch + data.draw(st.sampled_from([0, 0, 0, -1, 1]))
+        phase = data.draw(st.sampled_from([str(status.phase), "PRE_CONTACT", "FREE_SPACE"]))
+        epoch = status.epoch + data.draw(st.sampled_from([0, 0, 0, -1, 1]))
         first = self.t_ms + data.draw(st.integers(-30, 25))
         actions = data.draw(fast_actions(self._start(), data.draw(st.integers(1, 12))))
         policy = data.draw(st.sampled_from(["replace", "append", "blend"]))
@@ -309,7 +309,7 @@ class CoreMachine(SentCommandChecks, RuleBasedStateMachine):
 
     @rule(noise=st.floats(-0.003, 0.003), jump=st.booleans())
     def state_sample(self, noise: float, jump: bool) -> None:
-        q = self.core.state.measured_q.copy()
+        q = self.core.inspect_state().measured_q.copy()
         if self.run:
             q = self.run[-1][2].copy()
         q[:6] += noise + (0.1 if jump else 0.0)
@@ -319,7 +319,7 @@ class CoreMachine(SentCommandChecks, RuleBasedStateMachine):
           room=st.floats(0.0, 0.05))
     def near_a_limit(self, joint: int, side: float, room: float) -> None:
         """The arm measured close to a position limit: chunks now start there."""
-        q = self.core.state.measured_q.copy()
+        q = self.core.inspect_state().measured_q.copy()
         q[joint] = (self.upper[joint] if side > 0 else self.lower[joint]) - side * room
         self._feed(StateEvent(t=self._ns(), q=tuple(q.tolist())))
 
@@ -330,7 +330,7 @@ class CoreMachine(SentCommandChecks, RuleBasedStateMachine):
         for event_ in (ControllerEvent(t=t, status="ok"), OperatorEvent(t=t, action="reset"),
                        OperatorEvent(t=t, action="release"),
                        OperatorEvent(t=t, action="accept_recovery"),
-                       HandshakeEvent(t=t, offer=offer(queue_epoch=self.core.state.epoch)),
+                       HandshakeEvent(t=t, offer=offer(queue_epoch=self.core.status().epoch)),
                        PhaseEvent(t=t, to=to, evidence={}, by="fsm")):
             self._feed(event_)
 
@@ -353,7 +353,7 @@ class CoreMachine(SentCommandChecks, RuleBasedStateMachine):
 
     @rule(compatible=st.booleans())
     def handshake(self, compatible: bool) -> None:
-        body = offer(queue_epoch=self.core.state.epoch) if compatible else offer(action_dim=7)
+        body = offer(queue_epoch=self.core.status().epoch) if compatible else offer(action_dim=7)
         self._feed(HandshakeEvent(t=self._ns(), offer=body))
 
     @rule(action=st.sampled_from(["takeover", "release", "accept_recovery", "estop", "reset",
@@ -368,7 +368,7 @@ class CoreMachine(SentCommandChecks, RuleBasedStateMachine):
     @invariant()
     def queue_holds_only_the_current_epoch(self) -> None:
         if hasattr(self, "core"):
-            assert self.core.state.queue.epochs() <= {self.core.state.epoch}
+            assert self.core.inspect_state().queue.epochs() <= {self.core.status().epoch}
 
 
 CoreMachine.TestCase.settings = settings(

@@ -26,11 +26,11 @@ def test_a_tick_the_policy_does_not_own_clears_the_last_setpoint() -> None:
     feed(core, chunk_event(0, chunk_fields("C1", 1, 0, "FREE_SPACE", "O1", 0, 0, moving)))
     for t_ms in range(0, 20, 2):
         sent, _ = tick(core, t_ms * MS)
-        assert sent.sent is not None and core.state.last_setpoint is not None
+        assert sent.sent is not None and core.inspect_state().last_setpoint is not None
     dry, _ = tick(core, 20 * MS)  # the last row's window has passed: the fallback holds
     assert dry.sent is None and dry.reason == "UNDERRUN"
-    assert core.state.last_setpoint is None
-    hold = core.state.hold_q
+    assert core.inspect_state().last_setpoint is None
+    hold = core.inspect_state().hold_q
     assert hold is not None
     feed(core, ObservationEvent(t=20 * MS, observation_id="O2"))
     stay = np.repeat(moving[-1][None, :], 3, axis=0)
@@ -38,6 +38,6 @@ def test_a_tick_the_policy_does_not_own_clears_the_last_setpoint() -> None:
                                                     stay)))
     line = next(x for x in lines if isinstance(x, ChunkLine))
     assert line.decision == "accepted", line
-    segment = core.state.queue.segments[-1]
+    segment = core.inspect_state().queue.segments[-1]
     assert segment.chunk_id == "C2"
     np.testing.assert_array_equal(segment.ref_q, hold)  # from the hold, at rest

@@ -38,8 +38,8 @@ def test_second_answers_are_refused_at_once_and_never_degrade() -> None:
     later = _lines(core, *(_chunk(6 + k, f"flood-{k}", 2 + k, "o1") for k in range(10)))
     assert [line.reasons for line in later] == [(R.OBSERVATION_ANSWERED,)] * 10
     assert all(line.projection_distance is None and line.divergence is None for line in later)
-    assert core.state.fallback.mode is Mode.RUNNING  # ten of them, degrade_after is 2
-    assert len(core.state.memory) == 1  # none of them entered the duplicate memory
+    assert core.status().mode is Mode.RUNNING  # ten of them, degrade_after is 2
+    assert len(core.inspect_state().memory) == 1  # none of them entered the duplicate memory
     # a duplicate of the admitted answer is still a duplicate, and the next request is open
     (again,) = _lines(core, _chunk(17, "c1", 1, "o1", first_ms=15))  # c1 again, later
     assert again.decision == "ignored" and again.reasons == (R.DUPLICATE,)

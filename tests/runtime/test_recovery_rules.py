@@ -45,7 +45,7 @@ class Cell:
         self.t_ms = 0
         self.q = np.asarray(self.config.initial_q, dtype=float)
         self.send(HandshakeEvent(t=0, offer=offer()))
-        assert self.mode is Mode.RUNNING and self.core.state.session is not None
+        assert self.mode is Mode.RUNNING and self.core.inspect_state().session is not None
 
     def send(self, event: Event) -> None:
         feed(self.core, event)
@@ -72,11 +72,11 @@ class Cell:
 
     @property
     def mode(self) -> Mode:
-        return self.core.state.fallback.mode
+        return self.core.status().mode
 
     @property
     def phase(self) -> TaskPhase:
-        return self.core.state.task.phase
+        return self.core.status().phase
 
 
 @pytest.mark.parametrize("side", ["above the upper", "below the lower"])
@@ -103,7 +103,7 @@ def test_a_link_lost_during_a_takeover_ends_its_session() -> None:
     cell = Cell()
     cell.operator(OperatorAction.TAKEOVER)
     cell.send(LinkEvent(t=cell.at(), status=LinkStatus.DOWN))
-    assert cell.core.state.session is None
+    assert cell.core.inspect_state().session is None
     cell.operator(OperatorAction.RELEASE)
     cell.operator(OperatorAction.ACCEPT_RECOVERY)
     # no session to resume on: wait for a handshake, never RUNNING on the dead session

@@ -40,14 +40,14 @@ def test_a_gap_between_ticks_past_the_state_watchdog_is_a_watchdog_fault() -> No
     assert transition.trigger == "WATCHDOG" and transition.to == "CONTROLLER_STOP"
     assert transition.t == stalled_ms
     assert transition.detail is not None and "4002 ms" in transition.detail
-    assert str(core.state.fallback.mode) == "CONTROLLER_STOP"
+    assert str(core.status().mode) == "CONTROLLER_STOP"
 
 
 def test_a_gap_within_the_state_watchdog_is_not_a_fault() -> None:
     core = Core(core_config("FREE_SPACE", state_timeout_ms=TIMEOUT_MS))
     assert _ticks_until(core, 100) == []
     assert _fresh_tick(core, (100 + TIMEOUT_MS) * MS) == []  # exactly the watchdog: late, kept
-    assert str(core.state.fallback.mode) == "RUNNING"
+    assert str(core.status().mode) == "RUNNING"
 
 
 def test_without_a_state_watchdog_a_gap_decides_nothing() -> None:

@@ -54,7 +54,7 @@ class Served:
 
     @property
     def mode(self) -> str:
-        return str(self.gateway.core.state.fallback.mode)
+        return str(self.gateway.core.status().mode)
 
     async def send(self, command: str) -> dict[str, Any]:
         return await asyncio.to_thread(send, self.path, command, CLIENT_TIMEOUT_S)
@@ -124,7 +124,7 @@ async def serving(directory: Path, limits: SocketLimits = DEFAULT_LIMITS) -> Asy
     gateway = CoreGateway(Core(core_config()), VirtualClock())
     group = grp.getgrgid(os.getegid()).gr_name
     served = Served(OperatorServer(gateway, directory / "operator.sock", group,
-                                   lambda: {"mode": str(gateway.core.state.fallback.mode)},
+                                   lambda: {"mode": str(gateway.core.status().mode)},
                                    limits), gateway)
     async with asyncio.TaskGroup() as tasks:
         ready = asyncio.Event()

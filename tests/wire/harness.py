@@ -69,10 +69,10 @@ class LoopbackGateway:
         self.handlers.setdefault(kind, []).append(handler)
 
     def client_side_hello(self) -> ClientHello:
-        return self.config.client.hello(self.core.state.epoch)
+        return self.config.client.hello(self.core.status().epoch)
 
     def capture_observation(self) -> RobotSample:
-        return RobotSample(q=self.q.copy(), task_phase=str(self.core.state.task.phase),
+        return RobotSample(q=self.q.copy(), task_phase=str(self.core.status().phase),
                            qd=np.zeros_like(self.q), wrench=np.zeros(6))
 
     # -- the shell's control loop --------------------------------------------------------------

@@ -37,8 +37,8 @@ async def test_reject_sends_nothing_into_the_queue() -> None:
     assert stats.byes_received[0] == "handshake_rejected"
     assert stats.observations == 0 and stats.chunks_sent == 0
     assert gateway.chunk_lines() == []
-    assert gateway.core.state.queue.pending_rows(gateway.now_ns()) == 0
-    assert gateway.core.state.session is None
+    assert gateway.core.inspect_state().queue.pending_rows(gateway.now_ns()) == 0
+    assert gateway.core.inspect_state().session is None
     assert link.client.counters.handshakes_accepted == 0
 
 
