@@ -17,6 +17,7 @@ import base64
 import json
 import math
 from collections.abc import Callable, Mapping
+from enum import StrEnum
 from typing import IO, Any
 
 import msgspec
@@ -65,15 +66,25 @@ class Applied(msgspec.Struct, frozen=True, kw_only=True, omit_defaults=True):
     """The driver's own time stamp of the write (the host's monotonic clock, ns)."""
 
 
+class CommandOrigin(StrEnum):
+    """Who decided a command the journal records."""
+
+    CORE = "core"
+    """The tick's decision: a replay compares it with the one it decides."""
+    SHELL = "shell"
+    """The stop the shell writes when a tick fails: no decision to compare with."""
+
+
+COMMAND_ORIGINS = tuple(CommandOrigin)
+
+
 class CommandRecord(msgspec.Struct, frozen=True, kw_only=True, omit_defaults=True):
-    """One motion effect as it was written to the driver, and what the driver answered.
-    ``origin`` is ``core`` for the tick's decision, ``shell`` for the stop the shell writes
-    when a tick fails (it has no decision to compare with)."""
+    """One motion effect as it was written to the driver, and what the driver answered."""
 
     t: int
     effect: Motion
     applied: Applied | None = None
-    origin: str = "core"
+    origin: CommandOrigin = CommandOrigin.CORE
 
 
 _record_encoder = msgspec.json.Encoder()
@@ -85,7 +96,7 @@ def command_line(record: CommandRecord) -> bytes:
                             "effect": record.effect}
     if record.applied is not None:
         body["applied"] = record.applied
-    if record.origin != "core":
+    if record.origin is not CommandOrigin.CORE:
         body["origin"] = record.origin
     return _record_encoder.encode(body)
 

@@ -23,7 +23,7 @@ from kernel.core.events import ComputedEvent, Event
 from kernel.core.jobs import run_job
 from kernel.core.lines import Line, encode
 from kernel.core.runtime import Core
-from kernel.journal import CommandRecord
+from kernel.journal import CommandOrigin, CommandRecord
 from kernel.scenario import Scenario
 
 
@@ -69,7 +69,7 @@ class Replay:
                 yield from self._step(ComputedEvent(t=event.t, result=result), False)
 
     def _compare(self, record: CommandRecord) -> None:
-        if record.origin != "core":
+        if record.origin is not CommandOrigin.CORE:
             return  # the shell's own stop after a failed tick: no decision to compare with
         self.commands_checked += 1
         if self.first_difference is not None:

@@ -40,6 +40,7 @@ from kernel.core.events import (
     StateEvent,
 )
 from kernel.journal import Applied as JournaledApplied
+from kernel.journal import CommandOrigin
 from kernel.shell.gateway import CoreGateway
 from kernel.summary import CycleResult
 from skills.assembly import (
@@ -120,7 +121,8 @@ class ControlLoop:
             # A software fault never leaves the last command live: stop the device, then let
             # the error end the run (the supervisor reports it).
             stop = Stop(gripper=None, owner=Owner.SAFETY, reason=ReasonCode.CONTROLLER_FAULT)
-            self.gateway.record_command(t, stop, await self._write(stop), origin="shell")
+            self.gateway.record_command(t, stop, await self._write(stop),
+                                        origin=CommandOrigin.SHELL)
             raise
         if motion is None:
             return  # the run is over (the gateway is closed)

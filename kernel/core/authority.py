@@ -150,8 +150,7 @@ def on_clock_sync(state: CoreState, event: ClockSyncEvent) -> None:
 
 
 def on_phase(state: CoreState, event: PhaseEvent) -> None:
-    target = TaskPhase(event.to)
-    by = Requester(event.by)
+    target, by = event.to, event.by
     fsm_authority = state.fallback.mode in (Mode.RUNNING, Mode.DEGRADED)
     before = state.task.phase
     decision = state.task.request(target, event.evidence, by, fsm_authority)

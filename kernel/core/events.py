@@ -14,7 +14,10 @@ from typing import Any
 import msgspec
 
 from assurance.envelope import Chunk, MalformedChunk
+from assurance.reasons import ReasonCode
 from kernel.core.jobs import JobResult
+from skills.phases import TaskPhase
+from skills.task_fsm import Requester
 
 
 class LinkStatus(StrEnum):
@@ -64,10 +67,13 @@ class ObservationEvent(msgspec.Struct, frozen=True, kw_only=True):
 
 
 class PhaseEvent(msgspec.Struct, frozen=True, kw_only=True):
+    """A request to move the task to phase ``to``, by the task's own sequencing (``fsm``), the
+    policy or an operator."""
+
     t: int
-    to: str
+    to: TaskPhase
     evidence: dict[str, Any] = {}
-    by: str = "fsm"
+    by: Requester = Requester.FSM
 
 
 class ForceEvent(msgspec.Struct, frozen=True, kw_only=True):
@@ -104,7 +110,7 @@ class ControllerEvent(msgspec.Struct, frozen=True, kw_only=True):
 
     t: int
     status: ControllerStatus
-    reason: str | None = None
+    reason: ReasonCode | None = None
 
 
 class RecorderEvent(msgspec.Struct, frozen=True, kw_only=True):
@@ -193,4 +199,4 @@ OPERATOR_ACTIONS = tuple(OperatorAction)
 CONTROLLER_STATUSES = tuple(ControllerStatus)
 LINK_STATUSES = tuple(LinkStatus)
 RECORDER_FAULTS = tuple(RecorderFault)
-REQUESTERS = ("fsm", "policy", "operator")
+REQUESTERS = tuple(Requester)

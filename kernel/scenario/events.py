@@ -51,7 +51,7 @@ from kernel.core.events import (
     TickEvent,
 )
 from kernel.core.jobs import JobResult
-from kernel.journal import Applied, CommandRecord
+from kernel.journal import COMMAND_ORIGINS, Applied, CommandOrigin, CommandRecord
 from kernel.scenario.bounds import CLOCK_OFFSET_MAX_MS, EVENT_TIME_MAX_MS
 from kernel.scenario.fields import (
     Where,
@@ -65,6 +65,7 @@ from kernel.scenario.fields import (
 )
 from kernel.scenario.session import state_vector
 from skills.phases import TaskPhase
+from skills.task_fsm import Requester
 
 Item = Event | CommandRecord
 """What a scenario or journal line is: an event for the core, or (journals) a command record
@@ -144,9 +145,9 @@ def _chunk(t: int, item: Mapping[str, Any], where: Where, _: JointLimits) -> Eve
 
 
 def _phase(t: int, item: Mapping[str, Any], where: Where, _: JointLimits) -> Event:
-    to = choice(item, "to", where, tuple(TaskPhase))
+    to = TaskPhase(choice(item, "to", where, tuple(TaskPhase)))
     evidence = mapping(item, "evidence", where, required=False)
-    by = choice(item, "by", where, REQUESTERS, default="fsm")
+    by = Requester(choice(item, "by", where, REQUESTERS, default=Requester.FSM))
     return PhaseEvent(t=t, to=to, evidence=evidence, by=by)
 
 
@@ -182,7 +183,7 @@ def _operator(t: int, item: Mapping[str, Any], where: Where, _: JointLimits) -> 
 def _controller(t: int, item: Mapping[str, Any], where: Where, _: JointLimits) -> Event:
     reason = None
     if item.get("reason") is not None:
-        reason = choice(item, "reason", where, tuple(ReasonCode))
+        reason = ReasonCode(choice(item, "reason", where, tuple(ReasonCode)))
     status = ControllerStatus(choice(item, "status", where, CONTROLLER_STATUSES))
     return ControllerEvent(t=t, status=status,
                            reason=reason)
@@ -217,7 +218,8 @@ def _command(t: int, item: Mapping[str, Any], where: Where, _: JointLimits) -> I
     return CommandRecord(
         t=t, effect=_converted(item.get("effect"), Motion, where.at("effect")),
         applied=None if applied is None else _converted(applied, Applied, where.at("applied")),
-        origin=choice(item, "origin", where, ("core", "shell"), default="core"))
+        origin=CommandOrigin(choice(item, "origin", where, COMMAND_ORIGINS,
+                                    default=CommandOrigin.CORE)))
 
 
 def _converted(raw: Any, kind: Any, where: Where) -> Any:

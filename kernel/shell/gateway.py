@@ -23,7 +23,7 @@ from kernel.core.effects import Effect, Motion, Step
 from kernel.core.events import Event, TickEvent
 from kernel.core.lines import Line
 from kernel.core.runtime import Core, CoreStatus
-from kernel.journal import Applied, CommandRecord
+from kernel.journal import Applied, CommandOrigin, CommandRecord
 from kernel.shell.link_types import RobotSample
 from kernel.shell.recorder import Recorder
 from kernel.shell.timer import Clock
@@ -78,7 +78,7 @@ class CoreGateway:
         return self.feed(TickEvent(t=t_ns, skipped=skipped)).motion
 
     def record_command(self, t_ns: int, effect: Motion, applied: Applied | None,
-                       origin: str = "core") -> None:
+                       origin: CommandOrigin = CommandOrigin.CORE) -> None:
         """Journal what was written to the driver and what the driver answered."""
         if self.recorder is not None and not self.closed:
             self.recorder.command(CommandRecord(t=t_ns, effect=effect, applied=applied,

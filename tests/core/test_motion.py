@@ -34,6 +34,7 @@ from kernel.core.runtime import Core
 from kernel.scenario.config import build_config
 from kernel.scenario.fields import Where
 from skills.contact import ContactState
+from skills.phases import TaskPhase
 from skills.planner import MoveStatus
 from tests.runtime.machine_setup import chunk_event, chunk_fields
 from tools.scenarios.base import Q0, ScenarioSpec
@@ -178,7 +179,7 @@ def test_a_paused_planner_move_resumes_within_the_limits(moving: int, held: int)
     target = np.array(Q0) + np.array([0.9, 0.0, 0.0, 0.0, 0.0, 0.0])
     _moved(drive, target)
     drive.tick(moving)
-    drive.feed(PhaseEvent, to="SAFE_HOLD", evidence={})  # a fallback takes the tick
+    drive.feed(PhaseEvent, to=TaskPhase.SAFE_HOLD, evidence={})  # a fallback takes the tick
     drive.tick(held)
     drive.feed(OperatorEvent, action="accept_recovery")  # back to work through VALIDATE
     drive.tick(2500)

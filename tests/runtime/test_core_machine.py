@@ -32,6 +32,7 @@ from hypothesis.stateful import RuleBasedStateMachine, initialize, invariant, ru
 from kernel.core.events import (
     ClockSyncEvent,
     ControllerEvent,
+    ControllerStatus,
     ForceEvent,
     HandshakeEvent,
     LinkEvent,
@@ -42,6 +43,8 @@ from kernel.core.events import (
     StateEvent,
 )
 from kernel.core.runtime import Core
+from skills.phases import TaskPhase
+from skills.task_fsm import Requester
 from tests.runtime.machine_checks import (
     SERVER_OFFSET_MS,
     SYNCED_DOMAIN,
@@ -327,17 +330,19 @@ class CoreMachine(SentCommandChecks, RuleBasedStateMachine):
     def recover(self, to: str) -> None:
         """What an operator and a reconnecting server do to get back to work."""
         t = self._ns()
-        for event_ in (ControllerEvent(t=t, status="ok"), OperatorEvent(t=t, action="reset"),
+        for event_ in (ControllerEvent(t=t, status=ControllerStatus.OK),
+                       OperatorEvent(t=t, action="reset"),
                        OperatorEvent(t=t, action="release"),
                        OperatorEvent(t=t, action="accept_recovery"),
                        HandshakeEvent(t=t, offer=offer(queue_epoch=self.core.status().epoch)),
-                       PhaseEvent(t=t, to=to, evidence={}, by="fsm")):
+                       PhaseEvent(t=t, to=TaskPhase(to), evidence={}, by=Requester.FSM)):
             self._feed(event_)
 
-    @rule(to=st.sampled_from(PHASES), full=st.booleans(), by=st.sampled_from(["fsm", "policy"]))
-    def phase(self, to: str, full: bool, by: str) -> None:
+    @rule(to=st.sampled_from(PHASES), full=st.booleans(),
+          by=st.sampled_from([Requester.FSM, Requester.POLICY]))
+    def phase(self, to: str, full: bool, by: Requester) -> None:
         evidence = EVIDENCE if full else {}
-        self._feed(PhaseEvent(t=self._ns(), to=to, evidence=evidence, by=by))
+        self._feed(PhaseEvent(t=self._ns(), to=TaskPhase(to), evidence=evidence, by=by))
 
     @rule(residual=st.floats(-30, 30))
     def force(self, residual: float) -> None:
@@ -363,7 +368,7 @@ class CoreMachine(SentCommandChecks, RuleBasedStateMachine):
 
     @rule(status=st.sampled_from(["ok", "reject", "fault", "estop"]))
     def controller(self, status: str) -> None:
-        self._feed(ControllerEvent(t=self._ns(), status=status))
+        self._feed(ControllerEvent(t=self._ns(), status=ControllerStatus(status)))
 
     @invariant()
     def queue_holds_only_the_current_epoch(self) -> None:
