@@ -14,6 +14,7 @@ from typing import Any
 import msgspec
 
 from assurance.envelope import Chunk, MalformedChunk
+from assurance.handshake import OfferIn
 from kernel.core.jobs import JobResult
 
 
@@ -87,7 +88,7 @@ class LinkEvent(msgspec.Struct, frozen=True, kw_only=True):
 
 class HandshakeEvent(msgspec.Struct, frozen=True, kw_only=True):
     t: int
-    offer: dict[str, Any]
+    offer: OfferIn
 
 
 class OperatorEvent(msgspec.Struct, frozen=True, kw_only=True):

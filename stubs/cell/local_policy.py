@@ -68,8 +68,7 @@ class LocalPolicyLink:
     def connect(self) -> None:
         epoch = self.gateway.core.state.epoch
         offer = msgspec.structs.replace(self.config.offer, queue_epoch=epoch)
-        self.gateway.feed(HandshakeEvent(t=self.gateway.now_ns(),
-                                         offer=msgspec.to_builtins(offer)))
+        self.gateway.feed(HandshakeEvent(t=self.gateway.now_ns(), offer=offer))
 
     def deliver_due(self) -> None:
         """Hand the core every chunk whose simulated inference has finished by now."""
