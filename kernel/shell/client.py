@@ -1,15 +1,16 @@
 """RobotClient: the robot side of the policy link (docs/protocol.md), one asyncio task.
 
-The client owns the websocket and nothing else. Every decision goes through the core, reached
-through a :class:`Gateway` the shell implements: the client turns frames into events
-(clock sync, handshake offer, observation taken, chunk arrived, link down) and feeds them; the
-core's answer decides what happens next (only its ``ACCEPT`` opens a session; its chunk lines
-are the admissions). Per connection: clock-sync burst, Hello, Offer → core → Decision, then
-observations on request, chunks in, heartbeats both ways. Any end of a connection feeds
-``LinkEvent(down)`` first, then says goodbye and closes within a bound; the client reconnects
-with bounded exponential backoff and always handshakes again, with the epoch the core started
-at the link loss. A policy server this run launched is restarted when it falls silent or stops
-accepting connections.
+The client owns the websocket and moves bytes; the session logic is the sans-I/O protocol object
+(:class:`~kernel.shell.link_protocol.WardenProtocol`), which turns frames into outputs (events
+for the core, frames to send, the connection's end). Every decision goes through the core,
+reached through a :class:`Gateway` the shell implements; the core's typed decisions decide what
+happens next (only its ``ACCEPT`` opens a session; its ``ChunkDecision`` records, from the
+chunk's own step or its job's, are the admissions). Per connection: clock-sync burst, Hello,
+Offer → core → Decision, then observations on request, chunks in, heartbeats both ways. Any end
+of a connection feeds ``LinkEvent(down)`` first, then says goodbye and closes within a bound;
+the client reconnects with bounded exponential backoff and always handshakes again, with the
+epoch the core started at the link loss. A policy server this run launched is restarted when it
+falls silent or stops accepting connections.
 
 What one peer can cost is bounded (:mod:`kernel.shell.link_budget`): frames and chunks over
 their rates are dropped and counted, chunks wait in a short queue for an admission slot the
@@ -257,7 +258,7 @@ class RobotClient:
             raise RuntimeError("the core answered a handshake without a handshake decision")
         epoch = self._gateway.client_side_hello().queue_epoch
         await self._carry(link, protocol.on_decision(decision, epoch))
-        link.accepted, link.version = True, decision.protocol
+        link.version = decision.protocol  # the clock exchange reads it
         self.fingerprint, self.protocol = decision.fingerprint, decision.protocol
         self.state = LinkState.ACCEPTED
         await self._clock.report(link)

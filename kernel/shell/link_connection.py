@@ -48,7 +48,6 @@ class Connection:
     counters: LinkCounters
     last_rx: float
     offer: asyncio.Future[HandshakeOffer]
-    accepted: bool = False
     version: int | None = None
     pong: asyncio.Future[tuple[wire.ClockPong, int]] | None = None
     """The answer to the one ping in flight (pings of a burst go one at a time)."""
