@@ -7,15 +7,25 @@ from __future__ import annotations
 from collections.abc import Iterator
 from pathlib import Path
 
+import msgspec
 import pytest
 
-from assurance.handshake import HandshakeDecision
+from assurance.handshake import (
+    HandshakeDecision,
+    HandshakeOffer,
+    MalformedOffer,
+    evaluate,
+    offer_in,
+)
+from assurance.reasons import ReasonCode
 from kernel.core.effects import ChunkDecision, Compute, DecisionRecord, Step
-from kernel.core.events import ComputedEvent, Event
+from kernel.core.events import ComputedEvent, Event, HandshakeEvent
 from kernel.core.jobs import run_job
 from kernel.core.lines import ChunkLine, HandshakeLine, Line
 from kernel.core.runtime import Core
+from kernel.journal import event_record
 from kernel.scenario import load_scenario
+from tests.core.test_handshake import ALLOW, HELLO, OFFER
 
 SCENARIOS = sorted((Path(__file__).resolve().parents[2] / "manifests" / "scenarios")
                    .glob("*.json"))
@@ -55,3 +65,16 @@ def test_every_logged_decision_comes_with_its_typed_record(path: Path) -> None:
             decided_in_jobs += isinstance(event, ComputedEvent) and bool(step.decisions)
     if path.stem.startswith("cartesian_"):
         assert decided_in_jobs > 0  # the case the shell used to miss: decided in a job
+
+
+def test_an_offer_is_journaled_as_it_came_typed_or_malformed() -> None:
+    typed = offer_in(OFFER)
+    assert isinstance(typed, HandshakeOffer)
+    record = event_record(HandshakeEvent(t=1, offer=typed))
+    assert record["offer"] == msgspec.to_builtins(msgspec.convert(OFFER, HandshakeOffer))
+    raw = {**OFFER, "action_dim": "seven"}
+    malformed = offer_in(raw)
+    assert isinstance(malformed, MalformedOffer) and "action_dim" in malformed.detail
+    assert event_record(HandshakeEvent(t=1, offer=malformed))["offer"] == raw
+    decision, session = evaluate(HELLO, malformed, ALLOW)
+    assert decision.reasons == (ReasonCode.MALFORMED,) and session is None
