@@ -80,6 +80,18 @@ class Session:
 AllowList = frozenset[tuple[str, str]]
 
 
+class MalformedOffer(msgspec.Struct, frozen=True, kw_only=True):
+    """An offer that does not decode (a scenario's or a hand-edited journal's: the wire decoder
+    lets none through): what it said, kept to be journaled as it came, and why it is refused."""
+
+    raw: dict[str, Any]
+    detail: str
+
+
+OfferIn = HandshakeOffer | MalformedOffer
+"""An offer as the core receives it: typed, or typed as malformed."""
+
+
 def decode_offer(offer: Mapping[str, Any] | HandshakeOffer) -> HandshakeOffer | str:
     """A typed offer, or a short description of why it is malformed."""
     if isinstance(offer, HandshakeOffer):
@@ -90,11 +102,17 @@ def decode_offer(offer: Mapping[str, Any] | HandshakeOffer) -> HandshakeOffer | 
         return str(error)
 
 
+def offer_in(offer: Mapping[str, Any]) -> OfferIn:
+    """An offer read from a document (a scenario, a journal), typed once, at the boundary."""
+    typed = decode_offer(offer)
+    return MalformedOffer(raw=dict(offer), detail=typed) if isinstance(typed, str) else typed
+
+
 def evaluate(
-    hello: ClientHello, offer: Mapping[str, Any] | HandshakeOffer, allowlist: AllowList
+    hello: ClientHello, offer: Mapping[str, Any] | OfferIn, allowlist: AllowList
 ) -> tuple[HandshakeDecision, Session | None]:
     """Decide on an offer. All checks run; a rejection lists every reason that applies."""
-    typed = decode_offer(offer)
+    typed = offer.detail if isinstance(offer, MalformedOffer) else decode_offer(offer)
     if isinstance(typed, str):
         return HandshakeDecision(decision=Verdict.REJECT, reasons=(ReasonCode.MALFORMED,)), None
     reasons = list(_mismatches(hello, typed, allowlist))

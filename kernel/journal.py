@@ -24,6 +24,7 @@ import msgspec
 
 from assurance.clock import ns_to_ms
 from assurance.envelope import TIME_FIELDS, Chunk, MalformedChunk
+from assurance.handshake import MalformedOffer, OfferIn
 from assurance.reasons import ReasonCode
 from kernel.core.effects import Motion
 from kernel.core.events import (
@@ -151,6 +152,11 @@ def chunk_fields(chunk: Chunk) -> dict[str, Any]:
     return fields
 
 
+def _offer(offer: OfferIn) -> Any:
+    """An offer as it came: a malformed one's own fields, not its description."""
+    return offer.raw if isinstance(offer, MalformedOffer) else msgspec.to_builtins(offer)
+
+
 _BODIES: dict[type, Callable[[Any], dict[str, Any]]] = {
     StateEvent: _state,
     ChunkEvent: _chunk,
@@ -160,7 +166,7 @@ _BODIES: dict[type, Callable[[Any], dict[str, Any]]] = {
     ForceEvent: lambda e: {"kind": "force", "residual": e.residual},
     OodEvent: lambda e: {"kind": "ood", "score": e.score},
     LinkEvent: lambda e: {"kind": "link", "status": e.status},
-    HandshakeEvent: lambda e: {"kind": "handshake", "offer": msgspec.to_builtins(e.offer)},
+    HandshakeEvent: lambda e: {"kind": "handshake", "offer": _offer(e.offer)},
     OperatorEvent: lambda e: {"kind": "operator", "action": e.action,
                               **({"uid": e.uid} if e.uid is not None else {})},
     ControllerEvent: lambda e: {"kind": "controller", "status": e.status,

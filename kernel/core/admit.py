@@ -39,7 +39,7 @@ from assurance.merge import MergeDraft, MergeInputs, MergePlan, draft_merge
 from assurance.projection import Projection, project, project_fast
 from assurance.reasons import ReasonCode as R
 from assurance.reasons import canonical
-from kernel.core.effects import Compute
+from kernel.core.effects import ChunkDecision, Compute
 from kernel.core.jobs import (
     Job,
     JobFailed,
@@ -115,7 +115,7 @@ def _ignore_duplicate(state: CoreState, chunk: Chunk) -> None:
         reasons.append(R.OLD_QUEUE_EPOCH)
     elif chunk.queue_epoch > state.epoch:
         reasons.append(R.FUTURE_QUEUE_EPOCH)
-    state.emit(ChunkLine(
+    _log(state, ChunkLine(
         t=state.t_ms, chunk_id=chunk.chunk_id, decision=Decision.IGNORED,
         reasons=canonical(reasons), queue_epoch=state.epoch,
         queue_depth=state.queue.pending_rows(state.t),
@@ -324,7 +324,7 @@ def _commit(
         state.watermarks.answered()
         state.watermarks.record_round_trip(state.t - t_obs)
     decision = _decision_name(plan)
-    state.emit(ChunkLine(
+    _log(state, ChunkLine(
         t=state.t_ms, chunk_id=chunk.chunk_id, decision=decision, reasons=(),
         queue_epoch=state.epoch, queue_depth=state.queue.pending_rows(state.t),
         trimmed=plan.trimmed or None,
@@ -346,10 +346,17 @@ def _decide(
     state: CoreState, chunk_id: str | None, reasons: tuple[R, ...], **extras: object
 ) -> None:
     """Log a refusal and raise the fallback trigger it implies, if any."""
-    state.emit(ChunkLine(
+    _log(state, ChunkLine(
         t=state.t_ms, chunk_id=chunk_id, decision=Decision.REJECTED, reasons=reasons,
         queue_epoch=state.epoch, queue_depth=state.queue.pending_rows(state.t), **extras,
     ))
     trigger = refusal_trigger(reasons)
     if trigger is not None:
         state.fire(trigger)
+
+
+def _log(state: CoreState, line: ChunkLine) -> None:
+    """Log a chunk's decision, and report it to the shell as a typed record."""
+    state.emit(line)
+    state.decided(ChunkDecision(chunk_id=line.chunk_id, decision=line.decision,
+                                reasons=line.reasons))

@@ -187,6 +187,7 @@ def on_handshake(state: CoreState, event: HandshakeEvent) -> None:
         t=state.t_ms, decision=decision.decision, fingerprint=decision.fingerprint,
         reasons=decision.reasons, protocol=decision.protocol, queue_epoch=state.epoch,
     ))
+    state.decided(decision)
     state.session = session
     if session is None:
         _rejected(state, decision.reasons)

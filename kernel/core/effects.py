@@ -17,9 +17,10 @@ from __future__ import annotations
 import msgspec
 
 from assurance.fallback import Owner
+from assurance.handshake import HandshakeDecision
 from assurance.reasons import ReasonCode
 from kernel.core.jobs import Job
-from kernel.core.lines import Line
+from kernel.core.lines import ADMITTED, Decision, Line
 
 Vector = tuple[float, ...]
 
@@ -96,11 +97,31 @@ class Compute(msgspec.Struct, frozen=True, kw_only=True, tag_field="effect", tag
 Effect = Setpoint | Retreat | Hold | Stop | RequestObservation | EndSession | Compute
 
 
+class ChunkDecision(msgspec.Struct, frozen=True, kw_only=True):
+    """What admission decided on one chunk, for the shell (the policy link's counters and its
+    backoff): produced with the chunk's decision-log line, whichever event decided it (the
+    chunk's own, or the ``computed`` event of its job)."""
+
+    chunk_id: str | None
+    decision: Decision
+    reasons: tuple[ReasonCode, ...] = ()
+
+    @property
+    def admitted(self) -> bool:
+        return self.decision in ADMITTED
+
+
+DecisionRecord = ChunkDecision | HandshakeDecision
+"""A decision the core reports to the shell as a typed record (never read off a log line)."""
+
+
 class Step(msgspec.Struct, frozen=True, eq=False):
-    """What one event produced: decision-log lines and effects, in the order they arose."""
+    """What one event produced: decision-log lines, effects, and the decisions the shell acts
+    on (chunks admitted or refused, handshakes), each in the order they arose."""
 
     lines: tuple[Line, ...]
     effects: tuple[Effect, ...]
+    decisions: tuple[DecisionRecord, ...] = ()
 
     @property
     def motion(self) -> Motion | None:

@@ -14,6 +14,7 @@ from typing import Any
 import msgspec
 
 from assurance.envelope import Chunk, MalformedChunk
+from assurance.handshake import OfferIn
 from assurance.reasons import ReasonCode
 from kernel.core.jobs import JobResult
 from skills.phases import TaskPhase
@@ -93,7 +94,7 @@ class LinkEvent(msgspec.Struct, frozen=True, kw_only=True):
 
 class HandshakeEvent(msgspec.Struct, frozen=True, kw_only=True):
     t: int
-    offer: dict[str, Any]
+    offer: OfferIn
 
 
 class OperatorEvent(msgspec.Struct, frozen=True, kw_only=True):

@@ -115,9 +115,10 @@ class Core:
             raise TimeWentBackwards(f"event at {event.t} ns after {state.t} ns")
         state.t = event.t
         _HANDLERS[type(event)](state, event)
-        step = Step(tuple(state.lines), tuple(state.effects))
+        step = Step(tuple(state.lines), tuple(state.effects), tuple(state.decisions))
         state.lines.clear()
         state.effects.clear()
+        state.decisions.clear()
         return step
 
     def status(self) -> CoreStatus:

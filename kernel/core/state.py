@@ -22,7 +22,7 @@ from assurance.queue import ActionQueue, SentRow
 from assurance.reasons import ReasonCode
 from assurance.watermarks import Watermarks
 from kernel.core.config import CoreConfig
-from kernel.core.effects import Effect, EndSession
+from kernel.core.effects import DecisionRecord, Effect, EndSession
 from kernel.core.lines import Line, Machine, QueueLine, TransitionLine
 from kernel.core.lines import QueueAction as QueueAct
 from kernel.core.motion import MotionState, initial_motion
@@ -63,6 +63,7 @@ class CoreState:
     watermarks: Watermarks | None = None
     lines: list[Line] = field(default_factory=list)
     effects: list[Effect] = field(default_factory=list)
+    decisions: list[DecisionRecord] = field(default_factory=list)
     parked: dict[int, Any] = field(default_factory=dict)
     """Chunks waiting for a job's result, by job id (see :mod:`kernel.core.admit`)."""
     jobs_issued: int = 0
@@ -128,6 +129,10 @@ class CoreState:
 
     def effect(self, effect: Effect) -> None:
         self.effects.append(effect)
+
+    def decided(self, record: DecisionRecord) -> None:
+        """Report a decision to the shell, typed (with the line that logs it)."""
+        self.decisions.append(record)
 
     def next_job_id(self) -> int:
         self.jobs_issued += 1

@@ -18,6 +18,7 @@ import msgspec
 from assurance.clock import ms_to_ns
 from assurance.envelope import decode_wire_chunk
 from assurance.event_chunk import decode_event_chunk
+from assurance.handshake import offer_in
 from assurance.limits import JointLimits
 from assurance.reasons import ReasonCode
 from kernel.core.effects import Motion
@@ -171,7 +172,7 @@ def _link(t: int, item: Mapping[str, Any], where: Where, _: JointLimits) -> Even
 
 
 def _handshake(t: int, item: Mapping[str, Any], where: Where, _: JointLimits) -> Event:
-    return HandshakeEvent(t=t, offer=mapping(item, "offer", where))
+    return HandshakeEvent(t=t, offer=offer_in(mapping(item, "offer", where)))
 
 
 def _operator(t: int, item: Mapping[str, Any], where: Where, _: JointLimits) -> Event:

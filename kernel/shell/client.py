@@ -1,15 +1,16 @@
 """RobotClient: the robot side of the policy link (docs/protocol.md), one asyncio task.
 
-The client owns the websocket and nothing else. Every decision goes through the core, reached
-through a :class:`Gateway` the shell implements: the client turns frames into events
-(clock sync, handshake offer, observation taken, chunk arrived, link down) and feeds them; the
-core's answer decides what happens next (only its ``ACCEPT`` opens a session; its chunk lines
-are the admissions). Per connection: clock-sync burst, Hello, Offer → core → Decision, then
-observations on request, chunks in, heartbeats both ways. Any end of a connection feeds
-``LinkEvent(down)`` first, then says goodbye and closes within a bound; the client reconnects
-with bounded exponential backoff and always handshakes again, with the epoch the core started
-at the link loss. A policy server this run launched is restarted when it falls silent or stops
-accepting connections.
+The client owns the websocket and moves bytes; the session logic is the sans-I/O protocol object
+(:class:`~kernel.shell.link_protocol.WardenProtocol`), which turns frames into outputs (events
+for the core, frames to send, the connection's end). Every decision goes through the core,
+reached through a :class:`Gateway` the shell implements; the core's typed decisions decide what
+happens next (only its ``ACCEPT`` opens a session; its ``ChunkDecision`` records, from the
+chunk's own step or its job's, are the admissions). Per connection: clock-sync burst, Hello,
+Offer → core → Decision, then observations on request, chunks in, heartbeats both ways. Any end
+of a connection feeds ``LinkEvent(down)`` first, then says goodbye and closes within a bound;
+the client reconnects with bounded exponential backoff and always handshakes again, with the
+epoch the core started at the link loss. A policy server this run launched is restarted when it
+falls silent or stops accepting connections.
 
 What one peer can cost is bounded (:mod:`kernel.shell.link_budget`): frames and chunks over
 their rates are dropped and counted, chunks wait in a short queue for an admission slot the
@@ -29,20 +30,28 @@ import contextlib
 import itertools
 import time
 
-import msgspec
 import structlog
 from websockets.asyncio.client import ClientConnection, connect
 from websockets.exceptions import ConnectionClosed, InvalidHandshake
 
-from assurance.handshake import HandshakeDecision, Verdict
+from assurance.handshake import HandshakeDecision, HandshakeOffer
 from kernel import wire
 from kernel.core import events as ev
-from kernel.core.effects import EndSession, RequestObservation
-from kernel.core.lines import HandshakeLine
+from kernel.core.effects import ChunkDecision, EndSession, RequestObservation
 from kernel.shell.link_budget import AdmissionPacer, RequestWindow, TokenBucket
 from kernel.shell.link_clock import LinkClock
 from kernel.shell.link_connection import SILENCE, Connection, LinkEnd, LinkEnded, closed
 from kernel.shell.link_intake import ChunkIntake
+from kernel.shell.link_protocol import (
+    ChunkArrived,
+    Ended,
+    Feed,
+    OfferArrived,
+    Output,
+    PongArrived,
+    Send,
+    WardenProtocol,
+)
 from kernel.shell.link_types import (
     ClientConfig,
     Gateway,
@@ -51,7 +60,7 @@ from kernel.shell.link_types import (
     LinkState,
 )
 from kernel.shell.supervisor import describe
-from kernel.wire import ByeReason, ClockSample, MessageType, ProtocolViolation
+from kernel.wire import ByeReason, ClockSample, ProtocolViolation
 
 log = structlog.get_logger("warden.link")
 
@@ -71,8 +80,6 @@ class RobotClient:
         self._clock = LinkClock(config, gateway)
         self._frames = TokenBucket(config.max_frames_per_s)
         self._window = RequestWindow(config.max_requests_in_flight, config.request_timeout_s)
-        self._intake = ChunkIntake(gateway, self.counters, config.max_chunks_per_s,
-                                   self._window, pacer, self._admitted)
         self._wanted = asyncio.Event()
         self._end = asyncio.Event()
         self._end_reason = ByeReason.SHUTDOWN
@@ -80,9 +87,12 @@ class RobotClient:
         self._stopped = asyncio.Event()
         self._down_reported = False
         self._healthy = False
-        self._observation_ids = itertools.count(1)
+        self.link_protocol = WardenProtocol(config.client_id, config.protocol, self.counters)
+        self._intake = ChunkIntake(gateway, self.counters, config.max_chunks_per_s,
+                                   self._window, pacer, self.link_protocol.chunk_event)
         gateway.on(RequestObservation, self._on_request)
         gateway.on(EndSession, self._on_session_end)
+        gateway.on(ChunkDecision, self._on_chunk_decided)
 
     @property
     def clock(self) -> ClockSample | None:
@@ -98,8 +108,12 @@ class RobotClient:
     def _on_request(self, _: RequestObservation) -> None:
         self.request()
 
-    def _admitted(self) -> None:
-        self._healthy = True  # the session worked: the backoff starts from scratch again
+    def _on_chunk_decided(self, decided: ChunkDecision) -> None:
+        """What the core decided on a chunk this link carried (in the chunk's own step or in
+        its job's): counted by the protocol."""
+        if decided.admitted:
+            self._healthy = True  # the session worked: the backoff starts from scratch again
+        self.link_protocol.on_decision(decided, self._gateway.client_side_hello().queue_epoch)
 
     def _on_session_end(self, _: EndSession) -> None:
         """The core ended the session (DEGRADED needs a new handshake): reconnect."""
@@ -171,6 +185,7 @@ class RobotClient:
         link = Connection(ws, self.counters, time.monotonic(),
                           asyncio.get_running_loop().create_future())
         self._intake.begin()
+        self.link_protocol.begin()
         ended: LinkEnded | None = None
         try:
             async with asyncio.TaskGroup() as tasks:
@@ -222,9 +237,8 @@ class RobotClient:
         try:
             async with asyncio.timeout(self.config.handshake_timeout_s):
                 await self._clock.sync(link)
-                await link.send(wire.Hello(client_id=self.config.client_id,
-                                                  protocol=self.config.protocol,
-                                                  hello=self._gateway.client_side_hello()))
+                await self._carry(link, self.link_protocol.hello(
+                    self._gateway.client_side_hello()))
                 offer = await link.offer
         except TimeoutError as error:
             raise LinkEnded(ByeReason.HANDSHAKE_TIMEOUT, "no offer in time") from error
@@ -232,25 +246,20 @@ class RobotClient:
         tasks.create_task(self._requests(link))
         tasks.create_task(self._clock.refresh(link))
 
-    async def _decide(self, link: Connection, offer: wire.Offer) -> None:
+    async def _decide(self, link: Connection, offer: HandshakeOffer) -> None:
         """The core decides; the client only carries its decision back to the server."""
         self._wanted.clear()  # requests made before this handshake are not for its session
         self._window.clear()
-        step = self._gateway.feed(ev.HandshakeEvent(t=self._gateway.now_ns(),
-                                                    offer=msgspec.to_builtins(offer.offer)))
-        verdict = next((line for line in step.lines if isinstance(line, HandshakeLine)), None)
-        if verdict is None:
-            raise RuntimeError("the core answered a handshake without a handshake line")
-        decision = HandshakeDecision(decision=verdict.decision, fingerprint=verdict.fingerprint,
-                                     reasons=tuple(verdict.reasons), protocol=verdict.protocol)
+        protocol = self.link_protocol
+        step = self._gateway.feed(protocol.handshake_event(offer, self._gateway.now_ns()))
+        decision = next((record for record in step.decisions
+                         if isinstance(record, HandshakeDecision)), None)
+        if decision is None:
+            raise RuntimeError("the core answered a handshake without a handshake decision")
         epoch = self._gateway.client_side_hello().queue_epoch
-        await link.send(wire.Decision(decision=decision, queue_epoch=epoch))
-        if verdict.decision != Verdict.ACCEPT or verdict.protocol is None:
-            self.counters.handshakes_rejected += 1
-            raise LinkEnded(ByeReason.HANDSHAKE_REJECTED, ",".join(verdict.reasons))
-        self.counters.handshakes_accepted += 1
-        link.accepted, link.version = True, verdict.protocol
-        self.fingerprint, self.protocol = verdict.fingerprint, verdict.protocol
+        await self._carry(link, protocol.on_decision(decision, epoch))
+        link.version = decision.protocol  # the clock exchange reads it
+        self.fingerprint, self.protocol = decision.fingerprint, decision.protocol
         self.state = LinkState.ACCEPTED
         await self._clock.report(link)
 
@@ -274,15 +283,11 @@ class RobotClient:
     async def _observe(self, link: Connection) -> None:
         sample = self._gateway.capture_observation()
         t = self._gateway.now_ns()
-        observation_id = f"{self.config.client_id}/{next(self._observation_ids)}"
-        self._gateway.feed(ev.ObservationEvent(t=t, observation_id=observation_id))
-        self._window.sent(observation_id)
         epoch = self._gateway.client_side_hello().queue_epoch
-        await link.send(wire.Observation(
-            observation_id=observation_id, t_event=t, queue_epoch=epoch,
-            task_phase=str(sample.task_phase), q=wire.vector_payload(sample.q),
-            qd=wire.optional_payload(sample.qd), wrench=wire.optional_payload(sample.wrench),
-            gripper=sample.gripper))
+        for output in self.link_protocol.observe(sample, t, epoch):
+            if isinstance(output, Feed) and isinstance(output.event, ev.ObservationEvent):
+                self._window.sent(output.event.observation_id)
+            await self._carry(link, [output])
         self.counters.observations_sent += 1
 
     async def _heartbeat(self, link: Connection) -> None:
@@ -320,31 +325,38 @@ class RobotClient:
                 if not self._frames.take():
                     self.counters.frames_dropped += 1  # over the frame rate: not even decoded
                     continue
-                self._dispatch(link, data)
+                self._apply(link, self.link_protocol.receive_frame(
+                    data, self._gateway.now_ns()))
         except ConnectionClosed as error:
             raise closed(error) from error
         except ProtocolViolation as error:
             raise link.violation(error) from error
         raise LinkEnded(None, "closed by the server")
 
-    def _dispatch(self, link: Connection, data: bytes | str) -> None:
-        frame = wire.decode_frame(data)
-        kind = wire.message_type(frame, link.version)
-        if kind is MessageType.CHUNK:
-            if not link.accepted:  # never let a chunk reach the core outside a session
-                raise ProtocolViolation("chunk before the session was accepted")
-            self._intake.put(frame)
-            return
-        message = wire.decode_body(frame, kind)
-        if isinstance(message, wire.ClockPong):
-            self._clock.on_pong(link, message, self._gateway.now_ns())
-        elif isinstance(message, wire.Offer) and not link.offer.done():
-            link.offer.set_result(message)
-        elif isinstance(message, wire.Bye):
-            self.counters.byes_received += 1
-            raise LinkEnded(None, f"server said bye: {message.reason[:40]}")
-        elif not isinstance(message, wire.Heartbeat):
-            raise ProtocolViolation(f"unexpected {kind} from the server")
+    def _apply(self, link: Connection, outputs: list[Output]) -> None:
+        """Carry out what the protocol made of a frame (nothing here sends)."""
+        for output in outputs:
+            if isinstance(output, ChunkArrived):
+                self._intake.put(output.frame)
+            elif isinstance(output, PongArrived):
+                self._clock.on_pong(link, output.pong, output.t_receive)
+            elif isinstance(output, OfferArrived):
+                if not link.offer.done():
+                    link.offer.set_result(output.offer)
+            elif isinstance(output, Ended):
+                raise LinkEnded(output.bye, output.detail)
+            elif isinstance(output, Feed):
+                self._gateway.feed(output.event)
+
+    async def _carry(self, link: Connection, outputs: list[Output]) -> None:
+        """Carry out what the protocol made of the core's side: frames sent, events fed."""
+        for output in outputs:
+            if isinstance(output, Send):
+                await link.send_data(output.data)
+            elif isinstance(output, Feed):
+                self._gateway.feed(output.event)
+            elif isinstance(output, Ended):
+                raise LinkEnded(output.bye, output.detail)
 
     # -- helpers ---------------------------------------------------------------------------
 

@@ -4,22 +4,26 @@ Everything that happens reaches the core through :meth:`CoreGateway.feed`, stamp
 run's clock (nanoseconds since the run started, so journals replay with small exact numbers):
 the control tick's state samples and ticks, the policy link's handshakes and chunks, operator
 actions, job results. Every fed event is journaled and every produced line recorded; the lines
-go to the listeners (the run's summary), and each effect goes to the handlers registered for its
-type (the policy link takes :class:`~kernel.core.effects.RequestObservation` and
-:class:`~kernel.core.effects.EndSession`, the job runner takes
-:class:`~kernel.core.effects.Compute`). The motion effect of a tick goes back to the control
-loop, which writes it to the driver and journals what it wrote and what the driver answered.
+go to the listeners (the run's summary), and each effect and decision record goes to the
+handlers registered for its type (the policy link takes
+:class:`~kernel.core.effects.RequestObservation`, :class:`~kernel.core.effects.EndSession` and
+:class:`~kernel.core.effects.ChunkDecision`, the job runner takes
+:class:`~kernel.core.effects.Compute`). An event a handler feeds waits until the step it
+answers is handed out in full (no handler re-enters the core). The motion effect of a tick goes
+back to the control loop, which writes it to the driver and journals what it wrote and what the
+driver answered.
 """
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Callable
 from typing import Any, TypeVar
 
 import numpy as np
 
 from assurance.handshake import ClientHello
-from kernel.core.effects import Effect, Motion, Step
+from kernel.core.effects import DecisionRecord, Effect, Motion, Step
 from kernel.core.events import Event, TickEvent
 from kernel.core.lines import Line
 from kernel.core.runtime import Core, CoreStatus
@@ -29,7 +33,7 @@ from kernel.shell.recorder import Recorder
 from kernel.shell.timer import Clock
 
 Listener = Callable[[tuple[Line, ...]], None]
-E = TypeVar("E", bound=Effect)
+E = TypeVar("E", bound=Effect | DecisionRecord)
 _NOTHING = Step((), ())
 
 
@@ -45,6 +49,8 @@ class CoreGateway:
         # opens on a core that has not stepped yet).
         self.robot = RobotSample(q=core.config.initial_q.copy(), task_phase=core.status().phase)
         self.closed = False
+        self._feeding = False
+        self._queued: deque[Event] = deque()
 
     def now_ns(self) -> int:
         return self.clock.now_ns() - self.t0_ns
@@ -55,10 +61,33 @@ class CoreGateway:
         self.closed = True
 
     def on(self, kind: type[E], handler: Callable[[E], None]) -> None:
-        """Call ``handler`` with every effect of type ``kind`` the core produces."""
+        """Call ``handler`` with every effect or decision record of type ``kind`` the core
+        produces, whichever event produced it."""
         self._handlers.setdefault(kind, []).append(handler)
 
     def feed(self, event: Event) -> Step:
+        """Step the core with ``event`` and hand out what it produced: the step's decisions
+        and effects go to the handlers of their types, in the order they arose.
+
+        A handler that feeds an event of its own (a job run inline, an observation taken) is
+        not stepped into the core in the middle of the step it is answering: its event waits
+        until every decision and effect of that step has been handed out, then is fed, in
+        order; such a nested ``feed`` returns an empty step (no caller of one reads it).
+        """
+        if self._feeding:
+            self._queued.append(event)
+            return _NOTHING
+        self._feeding = True
+        try:
+            step = self._step(event)
+            while self._queued:
+                self._step(self._queued.popleft())
+        finally:
+            self._feeding = False
+            self._queued.clear()
+        return step
+
+    def _step(self, event: Event) -> Step:
         if self.closed:
             return _NOTHING
         step = self.core.step(event)
@@ -67,9 +96,9 @@ class CoreGateway:
             self.recorder.lines(step.lines)
         for listener in self.listeners:
             listener(step.lines)
-        for effect in step.effects:
-            for handler in self._handlers.get(type(effect), ()):
-                handler(effect)
+        for record in (*step.decisions, *step.effects):
+            for handler in self._handlers.get(type(record), ()):
+                handler(record)
         return step
 
     def tick(self, t_ns: int, skipped: int = 0) -> Motion | None:

@@ -9,6 +9,7 @@ from enum import StrEnum
 from websockets.asyncio.client import ClientConnection
 from websockets.exceptions import ConnectionClosed
 
+from assurance.handshake import HandshakeOffer
 from kernel import wire
 from kernel.shell.link_types import LinkCounters
 from kernel.wire import ByeReason, Message, ProtocolViolation
@@ -46,8 +47,7 @@ class Connection:
     ws: ClientConnection
     counters: LinkCounters
     last_rx: float
-    offer: asyncio.Future[wire.Offer]
-    accepted: bool = False
+    offer: asyncio.Future[HandshakeOffer]
     version: int | None = None
     pong: asyncio.Future[tuple[wire.ClockPong, int]] | None = None
     """The answer to the one ping in flight (pings of a burst go one at a time)."""
@@ -55,7 +55,10 @@ class Connection:
 
     async def send(self, message: Message) -> None:
         """Send one message; a closed connection ends the link (:class:`LinkEnded`)."""
-        data = wire.encode(message)
+        await self.send_data(wire.encode(message))
+
+    async def send_data(self, data: bytes) -> None:
+        """Send one encoded frame; a closed connection ends the link (:class:`LinkEnded`)."""
         try:
             await self.ws.send(data)
         except ConnectionClosed as error:

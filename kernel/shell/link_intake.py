@@ -5,8 +5,10 @@ waits for: read from the frame with a decoder that skips everything else; it is 
 any other), or else if the chunk rate allows it and fewer than :data:`OTHERS_QUEUED` others are
 waiting; any other is dropped and counted, never fed. An admission task then feeds the queued
 chunks to the core one admission slot at a time (:class:`~kernel.shell.link_budget.
-AdmissionPacer`), decoding each only then, stamped with the instant it is decided. What the core
-decided goes back into the link's counters and its window of requests in flight.
+AdmissionPacer`), decoding each only then, stamped with the instant it is decided. A fed chunk
+answers its request in the window of requests in flight; what the core decided on it reaches
+the link as a typed :class:`~kernel.core.effects.ChunkDecision` (whichever event decided it:
+the chunk's own, or its job's result).
 """
 
 from __future__ import annotations
@@ -17,12 +19,10 @@ from collections.abc import Callable
 
 import msgspec
 
-from assurance.envelope import Chunk, MalformedChunk, decode_wire_chunk
+from assurance.envelope import Chunk
 from kernel.core import events as ev
-from kernel.core.lines import ChunkLine
 from kernel.shell.link_budget import AdmissionPacer, RequestWindow, TokenBucket
 from kernel.shell.link_types import Gateway, LinkCounters
-from kernel.summary import ADMITTED
 from kernel.wire import Frame
 
 OTHERS_QUEUED = 4
@@ -51,9 +51,9 @@ def cited_observation(body: bytes) -> str | None:
 class ChunkIntake:
     def __init__(self, gateway: Gateway, counters: LinkCounters, rate_per_s: float,
                  window: RequestWindow, pacer: AdmissionPacer | None,
-                 on_admitted: Callable[[], None]) -> None:
+                 chunk_event: Callable[[Frame, int], ev.ChunkEvent]) -> None:
         self._gateway, self._counters, self._window = gateway, counters, window
-        self._pacer, self._on_admitted = pacer, on_admitted
+        self._pacer, self._chunk_event = pacer, chunk_event
         self._bucket = TokenBucket(rate_per_s)
         self._expected: deque[Frame] = deque()
         """First chunks citing a request in flight: at most one per request."""
@@ -104,16 +104,8 @@ class ChunkIntake:
                 self._feed(queue.popleft())
 
     def _feed(self, frame: Frame) -> None:
-        t = self._gateway.now_ns()  # decided now: the core's clock only moves forward
-        chunk = decode_wire_chunk(frame.body, t)
-        counters = self._counters
-        if isinstance(chunk, MalformedChunk):
-            counters.malformed += 1
-        for line in self._gateway.feed(ev.ChunkEvent(t, chunk, bytes(frame.body))).lines:
-            if isinstance(line, ChunkLine):
-                admitted = line.decision in ADMITTED
-                if admitted:
-                    self._on_admitted()
-                counters.chunks_admitted += admitted
-                counters.chunks_refused += not admitted
+        # Decided now, decoded now (the protocol's decoder): the core's clock only moves forward.
+        event = self._chunk_event(frame, self._gateway.now_ns())
+        self._gateway.feed(event)
+        chunk = event.chunk
         self._window.answered(chunk.observation_id if isinstance(chunk, Chunk) else None)

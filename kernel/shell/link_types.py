@@ -35,7 +35,8 @@ class Gateway(Protocol):
     """The shell object that owns the core and the robot state.
 
     ``now_ns``: the client's monotonic clock, the core's time base. ``feed``: apply one event
-    to the core, return what it produced. ``on``: have the core's effects of a type handed to a
+    to the core, return what it produced. ``on``: have the core's effects and decision records
+    (:class:`~kernel.core.effects.ChunkDecision`) of a type handed to a
     handler. ``client_side_hello``: this client's handshake side with the core's current queue
     epoch. ``capture_observation``: the robot, measured now.
     """

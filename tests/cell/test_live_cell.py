@@ -17,6 +17,7 @@ import pytest
 from kernel.app import standins
 from kernel.app.live import run_live
 from kernel.app.session import RunContext
+from kernel.core.lines import ADMITTED
 from kernel.shell.loop import run
 from skills.contact import ContactState
 from skills.phases import TaskPhase
@@ -155,6 +156,14 @@ def test_a_cartesian_cycle_maps_its_chunks_in_the_worker_and_replays_exactly(
     computed = [line for line in (directory / "journal.jsonl").open() if '"computed"' in line]
     assert len(computed) == summary["jobs"]["done"]
     assert replays_identically(directory)
+    # Every chunk here is decided in a job: the link still counts each decision it carried.
+    chunks = [json.loads(line) for line in (directory / "decisions.jsonl").open()
+              if '"kind":"chunk"' in line]
+    admitted = sum(line["decision"] in ADMITTED for line in chunks)
+    link = summary["link"]
+    assert admitted > 5
+    assert (link.get("chunks_admitted", 0), link.get("chunks_refused", 0)) == (
+        admitted, len(chunks) - admitted)
 
 
 def test_a_policy_server_hung_before_contact_degrades_and_the_cycle_goes_on(

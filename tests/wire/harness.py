@@ -60,9 +60,9 @@ class LoopbackGateway:
         self.events.append(event)
         step = self.core.step(event)
         self.lines.extend(step.lines)
-        for effect in step.effects:
-            for handler in self.handlers.get(type(effect), ()):
-                handler(effect)
+        for record in (*step.decisions, *step.effects):
+            for handler in self.handlers.get(type(record), ()):
+                handler(record)
         return step
 
     def on(self, kind: type, handler: Callable[[Any], None]) -> None:
