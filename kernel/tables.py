@@ -90,15 +90,20 @@ def check_bounds(value: Any, meta: msgspec.Meta, where: Where) -> None:
         return
     high = meta.le
     if not math.isfinite(value):
-        limit = f" of at most {high:g}" if high is not None else ""
+        limit = f" of at most {_number(high)}" if high is not None else ""
         raise where.error(f"must be a finite number{limit}, got {shown(value)}")
     if meta.gt is not None and not value > meta.gt:
-        above = "positive" if meta.gt == 0 else f"above {meta.gt:g}"
+        above = "positive" if meta.gt == 0 else f"above {_number(meta.gt)}"
         raise where.error(f"must be {above}, got {shown(value)}")
     if meta.ge is not None and value < meta.ge:
-        raise where.error(f"must be at least {meta.ge:g}, got {shown(value)}")
+        raise where.error(f"must be at least {_number(meta.ge)}, got {shown(value)}")
     if high is not None and value > high:
-        raise where.error(f"must be at most {high:g}, got {shown(value)}")
+        raise where.error(f"must be at most {_number(high)}, got {shown(value)}")
+
+
+def _number(bound: float) -> str:
+    """A bound as a reader writes it: an integer in full (1048576, not 1.04858e+06)."""
+    return str(bound) if isinstance(bound, int) else f"{bound:g}"
 
 
 def bounds_of(cls: type, name: str) -> tuple[float | None, float | None]:
