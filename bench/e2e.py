@@ -55,6 +55,7 @@ from kernel.core.runtime import Core
 from kernel.scenario.config import build_config
 from kernel.scenario.fields import Where
 from kernel.shell.client import RobotClient
+from kernel.shell.link_settings import PolicySettings
 from kernel.shell.link_types import ClientConfig, RobotSample
 from kernel.summary import ADMITTED
 from stubs.policy_server import ServerConfig
@@ -155,9 +156,10 @@ async def _run_msgpack(port: int, samples: int) -> _BenchGateway:
     # One observation after another as fast as the link answers (a few thousand frames a
     # second): above the default frame-rate limit, which guards a robot against a flooding
     # server; a dropped answer would stall this closed loop, which never asks again.
+    link = PolicySettings(heartbeat_interval_ms=500.0, heartbeat_timeout_ms=5000.0,
+                          max_frames_per_s=100_000.0)
     client = RobotClient(ClientConfig(url=f"ws://127.0.0.1:{port}", client_id="bench",
-                                      heartbeat_interval_s=0.5, heartbeat_timeout_s=5.0,
-                                      max_frames_per_s=1e6), gateway)
+                                      policy=link), gateway)
     gateway.client = client
     async with asyncio.TaskGroup() as tasks:
         tasks.create_task(client.run())

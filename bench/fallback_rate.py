@@ -41,6 +41,8 @@ import types
 from pathlib import Path
 from typing import Any
 
+import msgspec
+
 if __package__ in (None, ""):  # run as a script: this directory's operator.py would stand in
     _HERE = Path(__file__).resolve().parent  # for the standard library's ``operator``
     sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != _HERE]
@@ -133,12 +135,12 @@ def inner(manifest_name: str, window_s: float) -> None:
     from kernel.manifest import load_manifest
 
     loaded = load_manifest(Path("manifests") / manifest_name)
-    cell = dataclasses.replace(loaded.cell, cycles=1000, simulated_operator=False,
+    cell = msgspec.structs.replace(loaded.cell, cycles=1000, simulated_operator=False,
                                cycle_timeout_s=600.0)
     walk = Walk(window_s, types.SimpleNamespace(**vars(events), ReasonCode=ReasonCode))
     with tempfile.TemporaryDirectory() as journals:
         # Its own operator socket: a warden elsewhere on the machine may serve the default one.
-        operator = dataclasses.replace(loaded.operator, socket=f"{journals}/operator.sock")
+        operator = msgspec.structs.replace(loaded.operator, socket=f"{journals}/operator.sock")
         summary = run_wall(dataclasses.replace(loaded, cell=cell, operator=operator),
                            Path(journals), walk)
     result = {}

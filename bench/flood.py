@@ -32,6 +32,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import msgspec
+
 if __package__ in (None, ""):  # run as a script: make the repository importable
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
@@ -84,7 +86,8 @@ def _stop_after(seconds: float) -> Callable[[RunContext], bool]:
 
 def run_case(name: str, seconds: float, workdir: Path) -> dict[str, Any]:
     manifest = load_manifest(MANIFEST)
-    manifest = dataclasses.replace(manifest, cell=dataclasses.replace(manifest.cell, cycles=100))
+    cell = msgspec.structs.replace(manifest.cell, cycles=100)
+    manifest = dataclasses.replace(manifest, cell=cell)
     original = standins.load
     standins.load = _with_server(CASES[name])  # type: ignore[assignment]
     try:

@@ -32,6 +32,8 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
+import msgspec
+
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT = ("sim-ur5e.toml", "sim-ur5e-rtde.toml", "sim-dynamixel.toml", "sim-canopen.toml")
 LOCKSTEP = "sim-ur5e.toml"
@@ -89,7 +91,7 @@ def child(manifest_name: str) -> None:
 
     root = Path(os.environ["PYTHONPATH"].split(os.pathsep)[0])
     loaded = load_manifest(root / "manifests" / manifest_name)
-    cell = dataclasses.replace(loaded, cell=dataclasses.replace(loaded.cell, cycles=1))
+    cell = dataclasses.replace(loaded, cell=msgspec.structs.replace(loaded.cell, cycles=1))
     lockstep = manifest_name == LOCKSTEP
     spec = {"samples": 100} if lockstep else {"duration_ms": 200}
     glitch = glitches.Glitch(glitches.PRE_CONTACT, spec, joint=0, offset=0.5,

@@ -10,6 +10,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
+import msgspec
+
 from kernel.app.interrupt import EXIT_INTERRUPTED
 from kernel.manifest import ClockKind, Manifest, ManifestError, load_manifest
 from kernel.scenario.bounds import CYCLES_MAX
@@ -249,9 +251,9 @@ def _with_overrides(manifest: Manifest, cycles: int | None, clock: str | None) -
     if cycles is not None:
         if not 1 <= cycles <= CYCLES_MAX:
             raise ManifestError(f"--cycles: must be 1 to {CYCLES_MAX}, got {cycles}")
-        cell = dataclasses.replace(cell, cycles=cycles)
+        cell = msgspec.structs.replace(cell, cycles=cycles)
     if clock is not None:
-        cell = dataclasses.replace(cell, clock=ClockKind(clock))
+        cell = msgspec.structs.replace(cell, clock=ClockKind(clock))
     return dataclasses.replace(manifest, cell=cell)
 
 

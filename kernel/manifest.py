@@ -12,7 +12,6 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import ipaddress
-import math
 import re
 import tomllib
 from collections.abc import Mapping
@@ -27,7 +26,8 @@ from kernel.safety.settings import SafetySettings, check_against_period
 from kernel.scenario import bounds
 from kernel.scenario.config import build_config, check_keys
 from kernel.scenario.document import check_document, decoded, read_bytes
-from kernel.scenario.fields import ScenarioError, Where, in_range, shown, text
+from kernel.scenario.fields import ScenarioError, Where, shown, text
+from kernel.scenario.workspace import workspace_box
 from kernel.settings import (
     CellSettings,
     ClockKind,
@@ -35,9 +35,10 @@ from kernel.settings import (
     JournalSettings,
     OperatorSettings,
     PlantKind,
-    PolicySettings,
     TrialEnvelope,
 )
+from kernel.shell.link_settings import PolicySettings
+from kernel.tables import read_table
 from skills.phases import Executor, TaskPhase
 
 __all__ = ["CellSettings", "ClockKind", "EmulatorSettings", "JournalSettings", "Manifest",
@@ -123,17 +124,16 @@ def _load(path: Path, raw: str) -> Manifest:
             "missing required key 'state_timeout_ms': a real device needs the state watchdog "
             "(the arm stops when its state samples stop)")
     del driver["name"]
-    policy = _policy(_settings(PolicySettings, doc, "policy", where), where.at("policy"))
+    policy = _policy(_read(PolicySettings, doc, "policy", where), where.at("policy"))
     _check_link_loss_first(core, policy, where)
     return Manifest(
         name=_run_name(doc, path, where), path=path, core=core, sections=sections,
         driver_name=driver_name, driver_settings=driver,
-        emulator=_settings(EmulatorSettings, doc, "emulator", where),
-        cell=_checked(_settings(CellSettings, doc, "cell", where), _CELL_BOUNDS,
-                      where.at("cell")),
-        policy=policy, journal=_settings(JournalSettings, doc, "journal", where),
+        emulator=_read(EmulatorSettings, doc, "emulator", where),
+        cell=_read(CellSettings, doc, "cell", where),
+        policy=policy, journal=_read(JournalSettings, doc, "journal", where),
         task=dict(_table(doc, "task", where)),
-        operator=_settings(OperatorSettings, doc, "operator", where),
+        operator=_read(OperatorSettings, doc, "operator", where),
         safety=_safety(doc, where, core.control_period_ns),
         trial=_trial(doc, where),
     )
@@ -247,35 +247,7 @@ def _table(doc: Mapping[str, Any], key: str, where: Where) -> Mapping[str, Any]:
     return value
 
 
-_CELL_BOUNDS: dict[str, tuple[float, float]] = {
-    "cycles": (1, bounds.CYCLES_MAX),
-    "seed": (0, bounds.SEED_MAX),
-    "cycle_timeout_s": (bounds.CYCLE_TIMEOUT_MIN_S, bounds.CYCLE_TIMEOUT_MAX_S),
-    "insertion_tolerance_m": (0.0, bounds.LENGTH_MAX_M),
-}
-_POLICY_BOUNDS: dict[str, tuple[float, float]] = {
-    "port": (0, bounds.PORT_MAX),
-    "latency_median_ms": (0.0, bounds.DURATION_MAX_MS),
-    "latency_p95_ms": (0.0, bounds.DURATION_MAX_MS),
-    "chunk_horizon": (1, bounds.CHUNK_HORIZON_MAX),
-    "action_dt_ms": (bounds.PERIOD_MIN_MS, bounds.PERIOD_MAX_MS),
-    "noise_rad": (0.0, bounds.NOISE_MAX_RAD),
-    "clock_offset_ms": (-bounds.CLOCK_OFFSET_MAX_MS, bounds.CLOCK_OFFSET_MAX_MS),
-}
-"""Ranges of the numeric settings of ``[cell]`` and ``[policy]`` (docs/manifest.md)."""
-
-
-def _checked(settings: Any, ranges: Mapping[str, tuple[float, float]], where: Where) -> Any:
-    for key, (low, high) in ranges.items():
-        value = getattr(settings, key)
-        if isinstance(value, float) and not math.isfinite(value):
-            raise where.at(key).error(f"must be a finite number, got {value!r}")
-        in_range(value, where.at(key), minimum=low, maximum=high)
-    return settings
-
-
 def _policy(settings: PolicySettings, where: Where) -> PolicySettings:
-    _checked(settings, _POLICY_BOUNDS, where)
     if settings.latency_p95_ms < settings.latency_median_ms:
         raise where.at("latency_p95_ms").error(
             f"must be at least latency_median_ms ({settings.latency_median_ms:g}), got "
@@ -321,22 +293,14 @@ def _settings(cls: type, doc: Mapping[str, Any], key: str, where: Where) -> Any:
         raise ManifestError(str(error)) from None
 
 
-_TRIAL_BOUNDS = {"max_cycles": (1, 1000), "max_duration_s": (1.0, 86_400.0),
-                 "speed_scale": (0.01, 1.0), "max_wrist_force_n": (0.1, 1000.0)}
+def _read(cls: type, doc: Mapping[str, Any], key: str, where: Where) -> Any:
+    return read_table(cls, _table(doc, key, where), where.at(key))
 
 
 def _trial(doc: Mapping[str, Any], where: Where) -> TrialEnvelope | None:
     if "trial" not in doc:
         return None
-    envelope = _checked(_settings(TrialEnvelope, doc, "trial", where), _TRIAL_BOUNDS,
-                        where.at("trial"))
-    here = where.at("trial")
-    corners = (*envelope.workspace_lower, *envelope.workspace_upper)
-    if not all(math.isfinite(v) and abs(v) <= 100.0 for v in corners):
-        raise here.error("workspace_lower and workspace_upper must be finite, within 100 m")
-    for axis, (low, high) in enumerate(zip(envelope.workspace_lower, envelope.workspace_upper,
-                                           strict=True)):
-        if low >= high:
-            raise here.at("workspace_lower").at(axis).error(
-                f"{low} is not below workspace_upper[{axis}] = {high}")
+    envelope: TrialEnvelope = _read(TrialEnvelope, doc, "trial", where)
+    workspace_box(envelope.workspace_lower, envelope.workspace_upper, where.at("trial"),
+                  ("workspace_lower", "workspace_upper"))
     return envelope

@@ -1,16 +1,23 @@
-"""The settings tables of a manifest that only a live run needs, as frozen dataclasses.
+"""The settings tables of a manifest that only a live run needs, as frozen msgspec Structs.
 
-:mod:`kernel.manifest` reads them (every key known, every value typed and range-checked); they
-are here so each table's meaning can be read on its own.
+:mod:`kernel.manifest` reads them through :func:`kernel.tables.read_table` (every key known,
+every value typed and within the range its field declares); they are here so each table's
+meaning can be read on its own. ``[policy]`` is the link's own type
+(:mod:`kernel.shell.link_settings`).
 """
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass
 from enum import StrEnum
+from typing import Annotated, Any
 
-from kernel.wire import MAX_FRAME_BYTES
+import msgspec
+from msgspec import Meta
+
+from assurance.kinematics import WorkspaceBox
+from kernel.core.config import TrialBounds
+from kernel.scenario import bounds
+from kernel.scenario.workspace import Coordinate, WristForce
 
 
 class ClockKind(StrEnum):
@@ -20,13 +27,13 @@ class ClockKind(StrEnum):
     """Lockstep: a virtual clock, the plant and an in-process policy step together (fast)."""
 
 
-@dataclass(frozen=True, slots=True)
-class CellSettings:
-    cycles: int = 3
+class CellSettings(msgspec.Struct, frozen=True, kw_only=True):
+    cycles: Annotated[int, Meta(ge=1, le=bounds.CYCLES_MAX)] = 3
     clock: ClockKind = ClockKind.WALL
-    seed: int = 7
-    cycle_timeout_s: float = 30.0
-    insertion_tolerance_m: float = 0.015
+    seed: Annotated[int, Meta(ge=0, le=bounds.SEED_MAX)] = 7
+    cycle_timeout_s: Annotated[float, Meta(ge=bounds.CYCLE_TIMEOUT_MIN_S,
+                                           le=bounds.CYCLE_TIMEOUT_MAX_S)] = 30.0
+    insertion_tolerance_m: Annotated[float, Meta(ge=0.0, le=bounds.LENGTH_MAX_M)] = 0.015
     """The evaluator's bar: peg depth below the fixture's top face that counts as inserted."""
     ground_truth: bool = True
     """In simulation, VERIFY also asks the simulator how deep the part truly is, and passes only
@@ -42,8 +49,7 @@ class PlantKind(StrEnum):
     KINEMATIC = "kinematic"
 
 
-@dataclass(frozen=True, slots=True)
-class EmulatorSettings:
+class EmulatorSettings(msgspec.Struct, frozen=True, kw_only=True):
     """``[emulator]``: simulation only."""
 
     launch: bool = True
@@ -51,74 +57,7 @@ class EmulatorSettings:
     host: str = ""
 
 
-POLICY_LINK_BOUNDS: dict[str, tuple[float, float]] = {
-    "max_frames_per_s": (1.0, 100_000.0),
-    "max_chunks_per_s": (0.1, 10_000.0),
-    "max_requests_in_flight": (1, 64),
-    "admissions_per_period": (1, 64),
-    "request_timeout_ms": (1.0, 60_000.0),
-    "heartbeat_interval_ms": (1.0, 60_000.0),
-    "heartbeat_timeout_ms": (1.0, 60_000.0),
-}
-"""Ranges of what one policy peer may cost (docs/manifest.md, "Bounds"): every rate, count and
-time the link budget (kernel/shell/link_budget.py) computes with is finite and sane before a
-server starts. A frame rate above 100 000/s or a chunk rate above 10 000/s is no limit at the
-GIL's pace; more than 64 requests in flight or admissions per period is more than a chunk
-queue holds; a timeout or heartbeat beyond a minute is a dead link nobody notices."""
-
-
-def _check_bounded(name: str, value: float, low: float, high: float) -> None:
-    """``value`` is a finite number within [low, high] (NaN and ±inf refused by name)."""
-    if not value > 0:  # also refuses NaN
-        raise ValueError(f"{name} must be positive, got {value!r}")
-    if not (math.isfinite(value) and value <= high):
-        raise ValueError(f"{name} must be a finite number of at most {high:g}, got {value!r}")
-    if value < low:
-        raise ValueError(f"{name} must be at least {low:g}, got {value!r}")
-
-
-@dataclass(frozen=True, slots=True)
-class PolicySettings:
-    launch: bool = True
-    host: str = "127.0.0.1"
-    expose: bool = False
-    """A launched reference server may listen on a ``host`` that is not loopback (reachable
-    from other hosts: the link has no authentication). Off: such a host is refused."""
-    port: int = 0
-    latency_median_ms: float = 30.0
-    latency_p95_ms: float = 60.0
-    chunk_horizon: int = 20
-    action_dt_ms: float = 20.0
-    noise_rad: float = 0.0005
-    clock_offset_ms: float = 0.0
-    # What one policy peer may cost (docs/manifest.md, [policy]; kernel/shell/link_budget.py)
-    max_frame_bytes: int = 65536
-    max_frames_per_s: float = 1000.0
-    max_chunks_per_s: float = 100.0
-    max_requests_in_flight: int = 4
-    request_timeout_ms: float = 250.0
-    admissions_per_period: int = 1
-    heartbeat_interval_ms: float = 100.0
-    heartbeat_timeout_ms: float = 350.0
-
-    def __post_init__(self) -> None:
-        for name, (low, high) in POLICY_LINK_BOUNDS.items():
-            _check_bounded(name, getattr(self, name), low, high)
-        if not 1 <= self.max_frame_bytes <= MAX_FRAME_BYTES:
-            raise ValueError(f"max_frame_bytes must be in 1..{MAX_FRAME_BYTES}, got "
-                             f"{self.max_frame_bytes!r}")
-        if not self.heartbeat_timeout_ms > self.heartbeat_interval_ms:
-            raise ValueError(f"heartbeat_timeout_ms ({self.heartbeat_timeout_ms!r}) must be "
-                             f"longer than heartbeat_interval_ms ({self.heartbeat_interval_ms})")
-
-    @property
-    def link_loss_bound_ms(self) -> float:
-        """How long a dead link may go unnoticed, with one heartbeat of margin."""
-        return self.heartbeat_timeout_ms + self.heartbeat_interval_ms
-
-
-@dataclass(frozen=True, slots=True)
-class OperatorSettings:
+class OperatorSettings(msgspec.Struct, frozen=True, kw_only=True):
     """``[operator]``: the socket a human commands the running arm through."""
 
     socket: str = ""
@@ -128,22 +67,32 @@ class OperatorSettings:
     """Who may command: members of this group (and root); empty: warden's own group."""
 
 
-@dataclass(frozen=True, slots=True)
-class JournalSettings:
+class JournalSettings(msgspec.Struct, frozen=True, kw_only=True):
     enabled: bool = True
     directory: str = "runs"
 
 
-@dataclass(frozen=True, slots=True)
-class TrialEnvelope:
+class TrialEnvelope(msgspec.Struct, frozen=True, kw_only=True):
     """``[trial]``: every bound of a bounded trial, all of them required."""
 
-    max_cycles: int
-    max_duration_s: float
-    workspace_lower: tuple[float, float, float]
+    max_cycles: Annotated[int, Meta(ge=1, le=1000)]
+    max_duration_s: Annotated[float, Meta(ge=1.0, le=86_400.0)]
+    workspace_lower: tuple[Coordinate, Coordinate, Coordinate]
     """The box the tool (TCP) must stay in, base frame, metres: its lower corner..."""
-    workspace_upper: tuple[float, float, float]
-    """...and its upper corner."""
-    speed_scale: float
+    workspace_upper: tuple[Coordinate, Coordinate, Coordinate]
+    """...and its upper corner (:func:`kernel.scenario.workspace.workspace_box` checks it)."""
+    speed_scale: Annotated[float, Meta(ge=0.01, le=1.0)]
     """Every joint's velocity limit is multiplied by this (0 < scale <= 1)."""
-    max_wrist_force_n: float
+    max_wrist_force_n: WristForce
+
+    def bounds(self) -> TrialBounds:
+        """What the core enforces (the box was checked when the manifest was read)."""
+        return TrialBounds(WorkspaceBox(list(self.workspace_lower), list(self.workspace_upper)),
+                           self.max_wrist_force_n)
+
+    def section(self) -> dict[str, Any]:
+        """The scenario's ``envelope`` section the journal's header records (a replay reads
+        it back with :func:`kernel.scenario.trial.trial_bounds`)."""
+        return {"workspace": {"lower": list(self.workspace_lower),
+                              "upper": list(self.workspace_upper)},
+                "max_wrist_force_n": self.max_wrist_force_n}

@@ -32,7 +32,7 @@ from kernel.app.session import (
     report_progress,
 )
 from kernel.core.events import LinkEvent, LinkStatus
-from kernel.manifest import Manifest, PolicySettings
+from kernel.manifest import Manifest
 from kernel.shell.client import RobotClient
 from kernel.shell.heartbeat import HeartbeatSender
 from kernel.shell.link_budget import AdmissionPacer
@@ -97,8 +97,8 @@ async def _run_live(manifest: Manifest, journal_dir: Path | None,
                 context.cell.context))
             url = server.start()
         if not stop.requested:
-            client = RobotClient(client_config(manifest.policy, url), context.cell.gateway,
-                                 pacer=loop.pacer, server=server)
+            client = RobotClient(ClientConfig(url=url, policy=manifest.policy),
+                                 context.cell.gateway, pacer=loop.pacer, server=server)
             await _supervise(context, client, worker, operator, loop, failures)
     finally:
         context.cell.controller.cut_short(cut_short_reason(
@@ -126,17 +126,6 @@ async def _run_live(manifest: Manifest, journal_dir: Path | None,
         "service": {"notify": service.enabled, "sent": service.stats.sent,
                     "failed": service.stats.failed},
     })
-
-
-def client_config(settings: PolicySettings, url: str) -> ClientConfig:
-    """The policy link's configuration from the manifest's ``[policy]`` table."""
-    return ClientConfig(
-        url=url, max_frame_bytes=settings.max_frame_bytes,
-        max_frames_per_s=settings.max_frames_per_s, max_chunks_per_s=settings.max_chunks_per_s,
-        max_requests_in_flight=settings.max_requests_in_flight,
-        request_timeout_s=settings.request_timeout_ms / 1000.0,
-        heartbeat_interval_s=settings.heartbeat_interval_ms / 1000.0,
-        heartbeat_timeout_s=settings.heartbeat_timeout_ms / 1000.0)
 
 
 class _Launched:

@@ -24,6 +24,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import msgspec
+
 from assurance.reasons import ReasonCode
 from drivers import registry
 from kernel import signing
@@ -130,16 +132,14 @@ def _bounded(manifest: Manifest, envelope: TrialEnvelope) -> Manifest:
     robot = dict(manifest.sections["robot"])
     robot["velocity_limits"] = [round(v * envelope.speed_scale, 12) for v in
                                 arm_velocities(manifest)]
-    sections = {**manifest.sections, "robot": robot, "envelope": {
-        "workspace": {"lower": list(envelope.workspace_lower),
-                      "upper": list(envelope.workspace_upper)},
-        "max_wrist_force_n": envelope.max_wrist_force_n}}
-    try:
-        core = build_config(sections, Where(str(manifest.path), ""))
+    scenario = {**manifest.sections, "robot": robot}
+    try:  # the velocities scaled, the envelope given typed (not read back from its section)
+        core = build_config(scenario, Where(str(manifest.path), ""), envelope.bounds())
     except ScenarioError as error:
         raise ManifestError(str(error)) from None
-    cell = dataclasses.replace(manifest.cell, cycles=min(manifest.cell.cycles,
-                                                         envelope.max_cycles))
+    cell = msgspec.structs.replace(manifest.cell,
+                                   cycles=min(manifest.cell.cycles, envelope.max_cycles))
+    sections = {**scenario, "envelope": envelope.section()}  # the journal's header
     return dataclasses.replace(manifest, core=core, sections=sections, cell=cell)
 
 

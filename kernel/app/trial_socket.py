@@ -22,6 +22,8 @@ import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
+import msgspec
+
 from kernel.manifest import Manifest, ManifestError
 from kernel.shell.operator import DEFAULT_RUNTIME_DIRECTORY, SOCKET_NAME, socket_path
 
@@ -52,7 +54,7 @@ def trial_socket(manifest: Manifest) -> Iterator[tuple[Manifest, Path]]:
         if problem:
             raise ManifestError(f"{where}.socket: cannot serve the operator socket at {path}: "
                                 f"{problem}")
-        operator = dataclasses.replace(settings, socket=str(path))
+        operator = msgspec.structs.replace(settings, socket=str(path))
         yield dataclasses.replace(manifest, operator=operator), path
     finally:
         if made is not None:

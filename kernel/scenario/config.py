@@ -20,7 +20,7 @@ from assurance.clock import ms_to_ns
 from assurance.limits import JointLimits
 from assurance.policy import ForceBand, LinkLoss, PhasePolicy
 from assurance.watermarks import WatermarkConfig
-from kernel.core.config import CoreConfig, MotionConfig
+from kernel.core.config import CoreConfig, MotionConfig, TrialBounds
 from kernel.scenario.bounds import (
     ACCELERATION_LIMIT_MAX,
     DEGRADE_AFTER_MAX,
@@ -92,7 +92,10 @@ def _known_only(table: Mapping[str, Any], known: frozenset[str], where: Where) -
             raise where.at(key).error(f"unknown key (known: {', '.join(sorted(known))})")
 
 
-def build_config(doc: Mapping[str, Any], where: Where) -> CoreConfig:
+def build_config(doc: Mapping[str, Any], where: Where,
+                 envelope: TrialBounds | None = None) -> CoreConfig:
+    """The core's configuration from a scenario's sections; ``envelope``: a live trial's,
+    typed (``doc`` then has no ``envelope`` section)."""
     check_keys(doc, where)
     robot = mapping(doc, "robot", where)
     limits = robot_limits(robot, where.at("robot"))
@@ -123,7 +126,7 @@ def build_config(doc: Mapping[str, Any], where: Where) -> CoreConfig:
         state_timeout_ns=_state_timeout(timing, where.at("timing"), period),
         cartesian=cartesian, kinematics=kinematics,
         motion=motion_config(mapping(doc, "motion", where, required=False), where.at("motion")),
-        envelope=trial_bounds(doc, where, kinematics),
+        envelope=trial_bounds(doc, where, kinematics, envelope),
     )
 
 

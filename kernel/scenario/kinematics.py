@@ -22,8 +22,8 @@ from assurance.kinematics import ArmKinematics, WorkspaceBox
 from assurance.limits import JointLimits
 from kernel.core.config import ClientSide
 from kernel.robot_model import BUILTIN, ModelError, ModelSpec, load_kinematics
-from kernel.scenario.bounds import WORKSPACE_MAX_M
-from kernel.scenario.fields import Where, mapping, text, vector
+from kernel.scenario.fields import Where, mapping, text
+from kernel.scenario.workspace import workspace_box
 
 
 def robot_kinematics(
@@ -105,10 +105,5 @@ def _workspace(robot: Mapping[str, Any], where: Where) -> WorkspaceBox | None:
     if robot.get("workspace") is None:
         return None
     box = mapping(robot, "workspace", where)
-    here = where.at("workspace")
-    lower = vector(box.get("lower"), here.at("lower"), 3, bound=WORKSPACE_MAX_M)
-    upper = vector(box.get("upper"), here.at("upper"), 3, bound=WORKSPACE_MAX_M)
-    for axis, (low, high) in enumerate(zip(lower, upper, strict=True)):
-        if low > high:
-            raise here.at("lower").at(axis).error(f"{low} exceeds the upper bound {high}")
-    return WorkspaceBox(lower, upper)
+    return workspace_box(box.get("lower"), box.get("upper"), where.at("workspace"),
+                         ("lower", "upper"))

@@ -78,8 +78,9 @@ class RobotClient:
         self._gateway = gateway
         self._server = server
         self._clock = LinkClock(config, gateway)
-        self._frames = TokenBucket(config.max_frames_per_s)
-        self._window = RequestWindow(config.max_requests_in_flight, config.request_timeout_s)
+        self._frames = TokenBucket(config.policy.max_frames_per_s)
+        self._window = RequestWindow(config.policy.max_requests_in_flight,
+                                     config.policy.request_timeout_s)
         self._wanted = asyncio.Event()
         self._end = asyncio.Event()
         self._end_reason = ByeReason.SHUTDOWN
@@ -88,7 +89,7 @@ class RobotClient:
         self._down_reported = False
         self._healthy = False
         self.link_protocol = WardenProtocol(config.client_id, config.protocol, self.counters)
-        self._intake = ChunkIntake(gateway, self.counters, config.max_chunks_per_s,
+        self._intake = ChunkIntake(gateway, self.counters, config.policy.max_chunks_per_s,
                                    self._window, pacer, self.link_protocol.chunk_event)
         gateway.on(RequestObservation, self._on_request)
         gateway.on(EndSession, self._on_session_end)
@@ -168,7 +169,7 @@ class RobotClient:
         cfg = self.config
         try:
             async with connect(
-                self.url, max_size=cfg.max_frame_bytes, compression=None, ping_interval=None,
+                self.url, max_size=cfg.policy.max_frame_bytes, compression=None, ping_interval=None,
                 open_timeout=cfg.open_timeout_s, close_timeout=cfg.close_timeout_s, proxy=None,
             ) as ws:
                 return await self._serve(ws)
@@ -293,7 +294,8 @@ class RobotClient:
     async def _heartbeat(self, link: Connection) -> None:
         """Send a heartbeat every interval; declare the peer silent the moment it has been for
         ``heartbeat_timeout_s`` (woken at that instant, not at the next heartbeat)."""
-        interval, timeout = self.config.heartbeat_interval_s, self.config.heartbeat_timeout_s
+        interval, timeout = (self.config.policy.heartbeat_interval_s,
+                             self.config.policy.heartbeat_timeout_s)
         next_send = time.monotonic() + interval
         for seq in itertools.count(1):
             while (now := time.monotonic()) < next_send:

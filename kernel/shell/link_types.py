@@ -14,10 +14,7 @@ from assurance.handshake import ClientHello
 from kernel import wire
 from kernel.core import events as ev
 from kernel.core.effects import Step
-
-LINK_FRAME_BYTES = 1 << 16
-"""Default frame limit: a 64 KiB frame holds a 1000 x 8 float64 chunk, twenty times any
-policy's; a larger frame closes the connection before its payload is read."""
+from kernel.shell.link_settings import PolicySettings
 
 
 @dataclass(frozen=True, slots=True)
@@ -66,22 +63,9 @@ class ClientConfig:
     url: str
     client_id: str = field(default_factory=lambda: f"warden-{uuid.uuid4().hex[:8]}")
     protocol: tuple[int, int] = wire.PROTOCOL_RANGE
-    max_frame_bytes: int = LINK_FRAME_BYTES
-    max_frames_per_s: float = 1000.0
-    """Frames beyond this rate are dropped undecoded (counted)."""
-    max_chunks_per_s: float = 100.0
-    """Chunks beyond this rate are dropped before decoding (counted); the first answer to an
-    observation in flight is exempt (kernel/shell/link_budget.py)."""
-    max_requests_in_flight: int = 4
-    """Observations sent and not answered yet; a request waits while this many are out."""
-    request_timeout_s: float = 0.25
-    """An observation unanswered this long no longer counts as in flight (an answer to it
-    would be stale by then in any phase of the shipped manifests)."""
-    heartbeat_interval_s: float = 0.1
-    heartbeat_timeout_s: float = 0.35
-    """Below the phases' underrun escalation (the manifest checks it), so a dead link is
-    DEGRADED (a new handshake recovers it) before a starved queue escalates to SAFE_HOLD (an
-    operator must)."""
+    policy: PolicySettings = field(default_factory=PolicySettings)
+    """The manifest's ``[policy]`` as read: what one policy peer may cost (frame and chunk
+    rates, requests in flight, timeouts, heartbeats), bounded where it is declared."""
     handshake_timeout_s: float = 5.0
     open_timeout_s: float = 5.0
     close_timeout_s: float = 1.0
@@ -95,16 +79,8 @@ class ClientConfig:
     def __post_init__(self) -> None:
         if self.clock_burst < 1:
             raise ValueError("clock_burst must be at least 1")
-        if not 0 < self.heartbeat_interval_s < self.heartbeat_timeout_s:
-            raise ValueError("need 0 < heartbeat_interval_s < heartbeat_timeout_s")
         if not 0 < self.backoff_initial_s <= self.backoff_max_s:
             raise ValueError("need 0 < backoff_initial_s <= backoff_max_s")
-        if not 0 < self.max_frame_bytes <= wire.MAX_FRAME_BYTES:
-            raise ValueError(f"max_frame_bytes must be in 1..{wire.MAX_FRAME_BYTES}")
-        if not (self.max_frames_per_s > 0 and self.max_chunks_per_s > 0):
-            raise ValueError("frame and chunk rate limits must be positive")
-        if self.max_requests_in_flight < 1 or not self.request_timeout_s > 0:
-            raise ValueError("need max_requests_in_flight >= 1 and request_timeout_s > 0")
 
 
 @dataclass(slots=True)

@@ -5,6 +5,8 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
+import msgspec
+
 from kernel.core.lines import encode
 from kernel.manifest import ClockKind, Manifest, load_manifest
 from kernel.replay import Replay
@@ -15,7 +17,7 @@ MANIFESTS = Path(__file__).resolve().parents[2] / "manifests"
 
 def manifest(name: str, cycles: int = 1, clock: ClockKind | None = None) -> Manifest:
     loaded = load_manifest(MANIFESTS / name)
-    cell = dataclasses.replace(loaded.cell, cycles=cycles, clock=clock or loaded.cell.clock)
+    cell = msgspec.structs.replace(loaded.cell, cycles=cycles, clock=clock or loaded.cell.clock)
     return dataclasses.replace(loaded, cell=cell)
 
 

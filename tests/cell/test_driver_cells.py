@@ -14,6 +14,7 @@ import json
 from pathlib import Path
 from typing import Any
 
+import msgspec
 import numpy as np
 import pytest
 
@@ -33,7 +34,7 @@ def test_a_full_cycle_runs_through_the_driver(tmp_path: Path, name: str) -> None
     """As a real cell would: VERIFY judges on measured evidence alone (the simulator's ground
     truth switched off)."""
     cell = manifest(name, cycles=1)
-    cell = dataclasses.replace(cell, cell=dataclasses.replace(cell.cell, ground_truth=False))
+    cell = dataclasses.replace(cell, cell=msgspec.structs.replace(cell.cell, ground_truth=False))
     summary = run(run_live(cell, tmp_path))
     assert summary["cycles"]["attempted"] == 1
     assert summary["cycles"]["verified"] == 1  # the driver's gripper grasped the peg

@@ -43,8 +43,10 @@ def _run(tmp_path: Path, text: str, capsys: pytest.CaptureFixture[str]) -> tuple
      "phases.PRE_CONTACT.max_underrun_ms: 400 ms must be longer than"),
     (("max_underrun_ms = 500", "#"), "phases.PRE_CONTACT.max_underrun_ms: 250 ms (max_action"),
     (("[policy]", "[policy]\nheartbeat_timeout_ms = 600"), "must be longer than policy.heart"),
-    (("[policy]", "[policy]\nmax_chunks_per_s = 0"), "policy: max_chunks_per_s must be positive"),
-    (("[policy]", "[policy]\nmax_frame_bytes = 2000000"), "policy: max_frame_bytes must be in"),
+    (("[policy]", "[policy]\nmax_chunks_per_s = 0"),
+     "policy.max_chunks_per_s: must be at least 0.1, got 0"),
+    (("[policy]", "[policy]\nmax_frame_bytes = 2000000"),
+     "policy.max_frame_bytes: must be at most 1048576, got 2000000"),
     (("[policy]", "[policy]\nheartbeat_timeout_ms = 50"),
      "heartbeat_timeout_ms (50.0) must be longer than heartbeat_interval_ms"),
 ])

@@ -14,6 +14,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+import msgspec
 import pytest
 
 from kernel.app.trial import TrialBound, cycle_count, load_trial, verdict
@@ -56,7 +57,7 @@ def test_a_trial_interrupted_in_cycle_2_of_3_counts_its_unfinished_cycle(tmp_pat
     trial = load_trial(_signed_sim_trial(tmp_path, cycles=3, max_cycles=3), TEST_KEYS)
     # The simulated operator stands in for the human who would accept a recovery (a policy
     # server late on a loaded machine holds the arm in SAFE_HOLD): this test is about the end.
-    manifest = dataclasses.replace(trial, cell=dataclasses.replace(trial.cell,
+    manifest = dataclasses.replace(trial, cell=msgspec.structs.replace(trial.cell,
                                                                    simulated_operator=True))
     sent: list[int] = []
 

@@ -26,6 +26,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+import msgspec
 import numpy as np
 import pytest
 
@@ -81,7 +82,7 @@ def _signed_sim_trial(tmp: Path, cycles: int = 1, cycle_timeout_s: float = 30.0,
 
 def _lockstep(manifest: Manifest, journal_dir: Path) -> tuple[dict[str, Any], list[dict]]:
     """The trial's manifest on the virtual clock: its summary and its journal's lines."""
-    virtual = dataclasses.replace(manifest, cell=dataclasses.replace(manifest.cell,
+    virtual = dataclasses.replace(manifest, cell=msgspec.structs.replace(manifest.cell,
                                                                      clock=ClockKind.VIRTUAL))
     summary = asyncio.run(run_lockstep(virtual, journal_dir))
     (journal,) = journal_dir.glob("*/journal.jsonl")

@@ -55,26 +55,30 @@ def _assert_refused(code: int, err: str, runs: Path, path: Path, needle: str) ->
 
 
 POLICY = [
-    ("max_chunks_per_s = inf", "max_chunks_per_s must be a finite number of at most 10000"),
-    ("max_chunks_per_s = nan", "max_chunks_per_s must be positive, got nan"),
-    ("max_chunks_per_s = 20000.0", "max_chunks_per_s must be a finite number of at most"),
-    ("max_frames_per_s = inf", "max_frames_per_s must be a finite number of at most 100000"),
-    ("max_frames_per_s = 1e308", "max_frames_per_s must be a finite number of at most"),
-    ("max_frames_per_s = 0.001", "max_frames_per_s must be at least 1"),
-    ("max_requests_in_flight = 100000000", "max_requests_in_flight must be a finite number "
-                                           "of at most 64"),
+    ("max_chunks_per_s = inf", "policy.max_chunks_per_s: must be a finite number of at most 10000"),
+    ("max_chunks_per_s = nan", "policy.max_chunks_per_s: must be a finite number of at most 10000, "
+                               "got nan"),
+    ("max_chunks_per_s = 20000.0", "policy.max_chunks_per_s: must be at most 10000, got 20000.0"),
+    ("max_frames_per_s = inf", "policy.max_frames_per_s: must be a finite number of at most "
+                               "100000"),
+    ("max_frames_per_s = 1e308", "policy.max_frames_per_s: must be at most 100000"),
+    ("max_frames_per_s = 0.001", "policy.max_frames_per_s: must be at least 1"),
+    ("max_requests_in_flight = 100000000", "policy.max_requests_in_flight: must be at most 64"),
     ("max_requests_in_flight = 1e8", "policy.max_requests_in_flight: expected int"),
-    ("admissions_per_period = 1000000", "admissions_per_period must be a finite number of at "
-                                        "most 64"),
-    ("request_timeout_ms = 1e300", "request_timeout_ms must be a finite number of at most "
-                                   "60000"),
-    ("request_timeout_ms = nan", "request_timeout_ms must be positive"),
-    ("heartbeat_interval_ms = inf", "heartbeat_interval_ms must be a finite number"),
-    ("heartbeat_interval_ms = 1e-9", "heartbeat_interval_ms must be at least 1"),
-    ("heartbeat_timeout_ms = inf", "heartbeat_timeout_ms must be a finite number of at most"),
-    ("heartbeat_timeout_ms = nan", "heartbeat_timeout_ms must be positive"),
-    ("heartbeat_timeout_ms = 3600000", "heartbeat_timeout_ms must be a finite number of at "
-                                       "most 60000"),
+    ("admissions_per_period = 1000000", "policy.admissions_per_period: must be at most 64"),
+    ("request_timeout_ms = 1e300", "policy.request_timeout_ms: must be at most 60000"),
+    ("request_timeout_ms = nan", "policy.request_timeout_ms: must be a finite number"),
+    ("heartbeat_interval_ms = inf", "policy.heartbeat_interval_ms: must be a finite number"),
+    ("heartbeat_interval_ms = 1e-9", "policy.heartbeat_interval_ms: must be at least 1"),
+    ("heartbeat_timeout_ms = inf", "policy.heartbeat_timeout_ms: must be a finite number of at "
+                                   "most"),
+    ("heartbeat_timeout_ms = nan", "policy.heartbeat_timeout_ms: must be a finite number"),
+    ("heartbeat_timeout_ms = 3600000", "policy.heartbeat_timeout_ms: must be at most 60000"),
+    ("heartbeat_timeout_ms = 50", "policy: heartbeat_timeout_ms (50.0) must be longer than "
+                                  "heartbeat_interval_ms"),
+    ("admissions_per_period = 0", "policy.admissions_per_period: must be at least 1, got 0"),
+    ("max_frame_bytes = 0", "policy.max_frame_bytes: must be at least 1, got 0"),
+    ("mystery = 1", "policy.mystery: unknown key"),
 ]
 
 

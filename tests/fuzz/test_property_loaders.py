@@ -38,6 +38,7 @@ import typing
 from pathlib import Path
 from typing import Any
 
+import msgspec
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, event, given, settings
@@ -47,7 +48,7 @@ from drivers.base import DriverInitError
 from drivers.settings import settings_from_mapping
 from kernel.cli import main
 from kernel.manifest import Manifest, ManifestError
-from kernel.settings import PolicySettings
+from kernel.shell.link_settings import PolicySettings
 from tests.fuzz.mutate import byte_mutated, mutated, to_json, to_toml
 from tests.fuzz.settings_use import (
     ADDRESS_STAND_INS,
@@ -179,7 +180,7 @@ def _assert_usable(loaded: Manifest, doc: dict[str, Any]) -> None:
         if isinstance(stated, list) and len(stated) == arm.sum():
             assert loaded_rates.tolist() == [float(v) for v in stated], key
     for key, value in doc.get("policy", {}).items():
-        if key in {f.name for f in dataclasses.fields(PolicySettings)} and isinstance(
+        if key in {f.name for f in msgspec.structs.fields(PolicySettings)} and isinstance(
                 value, int | float) and not isinstance(value, bool):
             assert getattr(loaded.policy, key) == value, f"policy.{key}"
 
@@ -213,7 +214,9 @@ def _keys(cls: type) -> list[tuple[str, bool]]:
     """(key, holds a list) for each numeric setting of ``cls`` (the driver's name left out)."""
     hints = typing.get_type_hints(cls)
     keys = []
-    for field in dataclasses.fields(cls):
+    fields = (msgspec.structs.fields(cls) if issubclass(cls, msgspec.Struct)
+              else dataclasses.fields(cls))
+    for field in fields:
         hint, args = hints[field.name], typing.get_args(hints[field.name])
         if hint in (int, float) or (type(None) in args and {int, float} & set(args)):
             keys.append((field.name, False))

@@ -17,6 +17,7 @@ from collections.abc import AsyncIterator, Callable
 from dataclasses import dataclass
 from typing import Any
 
+import msgspec
 import numpy as np
 
 from assurance.handshake import ClientHello
@@ -28,6 +29,7 @@ from kernel.scenario.config import build_config
 from kernel.scenario.fields import Where
 from kernel.shell.client import RobotClient
 from kernel.shell.link_budget import AdmissionPacer
+from kernel.shell.link_settings import PolicySettings
 from kernel.shell.link_types import ClientConfig, RobotSample
 from kernel.summary import ADMITTED
 from stubs.policy_server import LatencyModel, PolicyServer, ServerConfig
@@ -129,10 +131,16 @@ def server_config(**changes: Any) -> ServerConfig:
 
 
 def client_config(port: int, **changes: Any) -> ClientConfig:
-    base = ClientConfig(url=f"ws://127.0.0.1:{port}", client_id="robot-test",
-                        heartbeat_interval_s=0.05, heartbeat_timeout_s=0.5, clock_burst=5,
-                        clock_refresh_s=0.5, backoff_initial_s=0.02, backoff_max_s=0.2)
-    return dataclasses.replace(base, **changes)
+    """The test client's configuration; a change named as a ``[policy]`` key (in its unit, ms)
+    goes to the link's :class:`PolicySettings`, any other to :class:`ClientConfig`."""
+    policy_keys = {f.name for f in msgspec.structs.fields(PolicySettings)}
+    policy = PolicySettings(**{"heartbeat_interval_ms": 50.0, "heartbeat_timeout_ms": 500.0,
+                               **{k: v for k, v in changes.items() if k in policy_keys}})
+    base = ClientConfig(url=f"ws://127.0.0.1:{port}", client_id="robot-test", policy=policy,
+                        clock_burst=5, clock_refresh_s=0.5, backoff_initial_s=0.02,
+                        backoff_max_s=0.2)
+    return dataclasses.replace(base, **{k: v for k, v in changes.items()
+                                        if k not in policy_keys})
 
 
 @contextlib.asynccontextmanager

@@ -3,7 +3,6 @@ nothing the core is fed stops a journal from replaying."""
 
 from __future__ import annotations
 
-import dataclasses
 import time
 
 import numpy as np
@@ -11,18 +10,17 @@ import pytest
 
 from assurance.envelope import decode_wire_chunk
 from assurance.reasons import ReasonCode as R
-from kernel.app.live import client_config
 from kernel.core.effects import Step
 from kernel.core.events import ChunkEvent, ClockSyncEvent, ObservationEvent, TickEvent
 from kernel.core.lines import ChunkLine, encode
 from kernel.core.runtime import Core
 from kernel.journal import event_record
-from kernel.manifest import PolicySettings
 from kernel.scenario.config import build_config
 from kernel.scenario.events import parse_events
 from kernel.scenario.fields import Where
 from kernel.shell.link_budget import AdmissionPacer, TokenBucket
 from kernel.shell.link_intake import OTHERS_QUEUED
+from kernel.shell.link_settings import PolicySettings
 from kernel.shell.link_types import ClientConfig
 from kernel.wire import MAX_CLOCK_OFFSET_NS
 from stubs.policy_server import FaultConfig
@@ -115,7 +113,7 @@ async def test_an_oversized_or_junk_frame_ends_the_connection_unread(
 async def test_requests_in_flight_are_bounded_when_nothing_answers() -> None:
     limit = 3
     async with running(server_config(faults=FaultConfig(drop=1.0)),
-                       max_requests_in_flight=limit, request_timeout_s=0.15) as link:
+                       max_requests_in_flight=limit, request_timeout_ms=150.0) as link:
         counters = link.client.counters
         await wait_for(lambda: counters.requests_expired >= 2 * limit, "expired requests")
         sent, expired = counters.observations_sent, counters.requests_expired
@@ -176,11 +174,9 @@ def test_the_manifests_link_limits_reach_the_client() -> None:
     settings = PolicySettings(max_frame_bytes=4096, max_frames_per_s=50.0, max_chunks_per_s=7.0,
                               max_requests_in_flight=2, request_timeout_ms=80.0,
                               heartbeat_interval_ms=50.0, heartbeat_timeout_ms=200.0)
-    config = client_config(settings, "ws://127.0.0.1:1")
+    config = ClientConfig(url="ws://127.0.0.1:1", policy=settings).policy
     assert (config.max_frame_bytes, config.max_frames_per_s, config.max_chunks_per_s) == (
         4096, 50.0, 7.0)
     assert (config.max_requests_in_flight, config.request_timeout_s) == (2, 0.08)
     assert (config.heartbeat_interval_s, config.heartbeat_timeout_s) == (0.05, 0.2)
-    defaults = client_config(PolicySettings(), "ws://127.0.0.1:1")
-    assert dataclasses.replace(defaults, client_id="x") == ClientConfig(url=defaults.url,
-                                                                        client_id="x")
+    assert ClientConfig(url="ws://127.0.0.1:1").policy == PolicySettings()

@@ -73,7 +73,7 @@ async def test_a_silent_server_is_a_lost_link_within_the_heartbeat_timeout() -> 
     # frame (plus the loop's latency), before any goodbye or close handshake with it.
     timeout_s = 0.15
     async with running(server_config(faults=FaultConfig(stall_after=2)),
-                       heartbeat_timeout_s=timeout_s) as link:
+                       heartbeat_timeout_ms=timeout_s * 1000) as link:
         await wait_for(lambda: link.gateway.link_events("down"), "the link declared lost")
         events = list(link.gateway.events)
         transitions = [line for line in link.gateway.lines
@@ -116,8 +116,8 @@ async def test_a_launched_server_that_hangs_is_restarted_and_the_session_resumes
     server = _LaunchedServer()
     url = await asyncio.to_thread(server.start)
     gateway = LoopbackGateway()
-    client = RobotClient(dataclasses.replace(client_config(0), url=url,
-                                             heartbeat_timeout_s=0.15), gateway, server=server)
+    client = RobotClient(dataclasses.replace(client_config(0, heartbeat_timeout_ms=150.0),
+                                             url=url), gateway, server=server)
     gateway.client = client
     stop = asyncio.Event()
     try:

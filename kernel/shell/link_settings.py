@@ -1,0 +1,91 @@
+"""``[policy]``: the policy server a run talks to and what one policy peer may cost.
+
+One type, in the manifest's unit (milliseconds, as written), used by the link directly
+(:class:`kernel.shell.link_types.ClientConfig` holds it); the ``*_s`` properties are the only
+conversion to the seconds the link's timers count in. Each field's range is declared on the
+field (:mod:`kernel.tables` checks it while the manifest loads; docs/manifest.md, "Bounds").
+"""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+import msgspec
+from msgspec import Meta
+
+from kernel.scenario.bounds import (
+    CHUNK_HORIZON_MAX,
+    CLOCK_OFFSET_MAX_MS,
+    DURATION_MAX_MS,
+    NOISE_MAX_RAD,
+    PERIOD_MAX_MS,
+    PERIOD_MIN_MS,
+    PORT_MAX,
+)
+from kernel.wire import MAX_FRAME_BYTES
+
+LinkTime = Annotated[float, Meta(ge=1.0, le=DURATION_MAX_MS)]
+"""A link timeout or heartbeat, ms: beyond a minute a dead link goes unnoticed."""
+Window = Annotated[int, Meta(ge=1, le=64)]
+"""More than 64 requests in flight, or admissions per period, is more than a chunk queue
+holds."""
+LatencyMs = Annotated[float, Meta(ge=0.0, le=DURATION_MAX_MS)]
+
+
+class PolicySettings(msgspec.Struct, frozen=True, kw_only=True):
+    launch: bool = True
+    host: str = "127.0.0.1"
+    expose: bool = False
+    """A launched reference server may listen on a ``host`` that is not loopback (reachable
+    from other hosts: the link has no authentication). Off: such a host is refused."""
+    port: Annotated[int, Meta(ge=0, le=PORT_MAX)] = 0
+    # The reference server's model (stubs/cell/reference.py)
+    latency_median_ms: LatencyMs = 30.0
+    latency_p95_ms: LatencyMs = 60.0
+    chunk_horizon: Annotated[int, Meta(ge=1, le=CHUNK_HORIZON_MAX)] = 20
+    action_dt_ms: Annotated[float, Meta(ge=PERIOD_MIN_MS, le=PERIOD_MAX_MS)] = 20.0
+    noise_rad: Annotated[float, Meta(ge=0.0, le=NOISE_MAX_RAD)] = 0.0005
+    clock_offset_ms: Annotated[float, Meta(ge=-CLOCK_OFFSET_MAX_MS, le=CLOCK_OFFSET_MAX_MS)] = 0.0
+    # What one policy peer may cost (kernel/shell/link_budget.py). A frame rate above
+    # 100 000/s or a chunk rate above 10 000/s is no limit at the GIL's pace.
+    max_frame_bytes: Annotated[int, Meta(ge=1, le=MAX_FRAME_BYTES)] = 1 << 16
+    """A 64 KiB frame holds a 1000 x 8 float64 chunk, twenty times any policy's; a larger
+    frame closes the connection before its payload is read."""
+    max_frames_per_s: Annotated[float, Meta(ge=1.0, le=100_000.0)] = 1000.0
+    """Frames beyond this rate are dropped undecoded (counted)."""
+    max_chunks_per_s: Annotated[float, Meta(ge=0.1, le=10_000.0)] = 100.0
+    """Chunks beyond this rate are dropped before decoding (counted); the first answer to an
+    observation in flight is exempt."""
+    max_requests_in_flight: Window = 4
+    """Observations sent and not answered yet; a request waits while this many are out."""
+    request_timeout_ms: LinkTime = 250.0
+    """An observation unanswered this long no longer counts as in flight (an answer to it
+    would be stale by then in any phase of the shipped manifests)."""
+    admissions_per_period: Window = 1
+    heartbeat_interval_ms: LinkTime = 100.0
+    heartbeat_timeout_ms: LinkTime = 350.0
+    """Below the phases' underrun escalation (the manifest checks it), so a dead link is
+    DEGRADED (a new handshake recovers it) before a starved queue escalates to SAFE_HOLD (an
+    operator must)."""
+
+    def __post_init__(self) -> None:
+        if not self.heartbeat_timeout_ms > self.heartbeat_interval_ms:
+            raise ValueError(f"heartbeat_timeout_ms ({self.heartbeat_timeout_ms!r}) must be "
+                             f"longer than heartbeat_interval_ms ({self.heartbeat_interval_ms})")
+
+    @property
+    def link_loss_bound_ms(self) -> float:
+        """How long a dead link may go unnoticed, with one heartbeat of margin."""
+        return self.heartbeat_timeout_ms + self.heartbeat_interval_ms
+
+    @property
+    def request_timeout_s(self) -> float:
+        return self.request_timeout_ms / 1000.0
+
+    @property
+    def heartbeat_interval_s(self) -> float:
+        return self.heartbeat_interval_ms / 1000.0
+
+    @property
+    def heartbeat_timeout_s(self) -> float:
+        return self.heartbeat_timeout_ms / 1000.0
