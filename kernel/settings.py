@@ -10,6 +10,9 @@ import math
 from dataclasses import dataclass
 from enum import StrEnum
 
+# [emulator] is read by the safety monitor too, so its type lives below both readers.
+from kernel.manifest_tables import EmulatorSettings as EmulatorSettings
+from kernel.manifest_tables import PlantKind as PlantKind
 from kernel.wire import MAX_FRAME_BYTES
 
 
@@ -35,20 +38,6 @@ class CellSettings:
     simulated_operator: bool = True
     """Accept recovery automatically once the arm rests under a fallback owner. Simulation
     only: a manifest that drives a real device must set it false (a human recovers)."""
-
-
-class PlantKind(StrEnum):
-    MUJOCO = "mujoco"
-    KINEMATIC = "kinematic"
-
-
-@dataclass(frozen=True, slots=True)
-class EmulatorSettings:
-    """``[emulator]``: simulation only."""
-
-    launch: bool = True
-    plant: PlantKind = PlantKind.MUJOCO
-    host: str = ""
 
 
 POLICY_LINK_BOUNDS: dict[str, tuple[float, float]] = {
