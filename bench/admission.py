@@ -45,9 +45,9 @@ from kernel.core.events import (
 from kernel.core.jobs import run_job
 from kernel.core.lines import Line, encode
 from kernel.core.runtime import Core
-from kernel.scenario import Scenario
 from kernel.scenario.config import build_config
 from kernel.scenario.fields import Where
+from kernel.scenario.load import Scenario
 from tools.scenarios.base import IDENTITY, ScenarioSpec, phases
 
 MS = 1_000_000

@@ -36,7 +36,7 @@ from kernel.cli_safety import add_commands as add_safety_commands
 from kernel.cli_trial import add_commands as add_trial_commands
 from kernel.core.lines import encode
 from kernel.replay import Replay, as_dict, check_expectations
-from kernel.scenario import Scenario, ScenarioError, load_scenario
+from kernel.scenario.load import Scenario, ScenarioError, load_scenario
 from kernel.timeline import render
 
 EXIT_OK, EXIT_CHECK_FAILED, EXIT_INVALID, EXIT_INCOMPLETE = 0, 1, 2, 3

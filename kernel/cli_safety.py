@@ -104,14 +104,14 @@ def _status_path(manifest: str | None, socket: str) -> Path:
     """Raises:
         ValueError: the manifest cannot be read, or has no [safety] table.
     """
-    from kernel.manifest import load_manifest
     from kernel.safety.settings import SafetySettings
+    from kernel.safety.view import read_view
 
     if socket:
         return Path(socket)
     if manifest is None:
         return SafetySettings().status_path
-    settings = load_manifest(manifest).safety
+    settings = read_view(manifest).safety
     if settings is None:
         raise ValueError(f"{manifest}: safety: no [safety] table")
     return settings.status_path

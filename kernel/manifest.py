@@ -12,21 +12,18 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import ipaddress
-import re
-import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from assurance.clock import ms_to_ns, ns_to_ms
-from drivers.settings import SettingsError, settings_from_mapping
 from kernel.core.config import CoreConfig
-from kernel.safety.settings import SafetySettings, check_against_period
-from kernel.scenario import bounds
+from kernel.manifest_tables import driver_table, parse_toml, run_name, safety_table, table
+from kernel.safety.settings import SafetySettings
 from kernel.scenario.config import build_config, check_keys
 from kernel.scenario.document import check_document, decoded, read_bytes
-from kernel.scenario.fields import ScenarioError, Where, shown, text
+from kernel.scenario.fields import ScenarioError, Where
 from kernel.scenario.workspace import workspace_box
 from kernel.settings import (
     CellSettings,
@@ -112,88 +109,29 @@ def load_manifest(path: str | Path, content: bytes | None = None,
 
 def _load(path: Path, raw: str) -> Manifest:
     where = Where(str(path), "")
-    doc = _parse_toml(raw, str(path))
+    doc = parse_toml(raw, str(path))
     check_document(doc, where)
     _refuse_unknown(doc, where)
     sections = {key: doc[key] for key in SCENARIO_SECTIONS if key in doc}
     core = build_config(sections, where)
-    driver = dict(_table(doc, "driver", where))
-    driver_name = text(driver, "name", where.at("driver"), numbers_ok=False)
+    driver_name, driver = driver_table(doc, where)
     if driver_name != "sim" and core.state_timeout_ns is None:
         raise where.at("timing").error(
             "missing required key 'state_timeout_ms': a real device needs the state watchdog "
             "(the arm stops when its state samples stop)")
-    del driver["name"]
     policy = _policy(_read(PolicySettings, doc, "policy", where), where.at("policy"))
     _check_link_loss_first(core, policy, where)
     return Manifest(
-        name=_run_name(doc, path, where), path=path, core=core, sections=sections,
+        name=run_name(doc, path, where), path=path, core=core, sections=sections,
         driver_name=driver_name, driver_settings=driver,
         emulator=_read(EmulatorSettings, doc, "emulator", where),
         cell=_read(CellSettings, doc, "cell", where),
         policy=policy, journal=_read(JournalSettings, doc, "journal", where),
-        task=dict(_table(doc, "task", where)),
+        task=dict(table(doc, "task", where)),
         operator=_read(OperatorSettings, doc, "operator", where),
-        safety=_safety(doc, where, core.control_period_ns),
+        safety=safety_table(doc, where, core.control_period_ns),
         trial=_trial(doc, where),
     )
-
-
-def _parse_toml(raw: str, name: str) -> dict[str, Any]:
-    try:
-        return tomllib.loads(raw)
-    except tomllib.TOMLDecodeError as error:
-        raise ManifestError(f"{name}: not valid TOML: {error}") from None
-    except RecursionError:
-        raise ManifestError(f"{name}: nested too deeply (at most {bounds.MAX_DEPTH} levels of "
-                            "tables and arrays)") from None
-    except ValueError:  # tomllib converts an integer of more than 4300 digits and fails
-        raise ManifestError(f"{name}: {_wide_literal_place(raw)}: an integer of thousands of "
-                            "digits: integers are at most 64 bits") from None
-
-
-_WIDE_LITERAL = re.compile(r"[0-9][0-9_]{999,}")
-_TABLE_HEADER = re.compile(r"^\s*\[\[?\s*([^\]]+?)\s*\]", re.MULTILINE)
-_KEY = re.compile(r"[ \t]*([^=\s]+)[ \t]*=")
-
-
-def _wide_literal_place(raw: str) -> str:
-    """Where the integer literal tomllib could not convert is: its line, and the key it
-    belongs to when the line starts with one (the parser itself cannot say)."""
-    found = _WIDE_LITERAL.search(raw)
-    if found is None:
-        return "somewhere"
-    line_start = raw.rfind("\n", 0, found.start()) + 1
-    line = raw.count("\n", 0, found.start()) + 1
-    key = _KEY.match(raw, line_start)
-    if key is None or key.end() > found.start():
-        return f"line {line}"
-    tables = _TABLE_HEADER.findall(raw, 0, line_start)
-    table = f"{tables[-1]}." if tables else ""
-    return f"line {line}: {table}{key.group(1)}"
-
-
-_NAME = re.compile(bounds.NAME_PATTERN)
-
-
-def _run_name(doc: Mapping[str, Any], path: Path, where: Where) -> str:
-    """The run's name: a directory name under the journal directory, so never a path."""
-    if "description" in doc and not isinstance(doc["description"], str):
-        raise where.at("description").error(f"must be a string, got {shown(doc['description'])}")
-    if "name" not in doc:
-        if _NAME.fullmatch(path.stem):
-            return path.stem
-        raise where.at("name").error(
-            f"missing, and the file name {shown(path.stem)} is not a safe run name: set "
-            f"'name' ({_NAME_RULE})")
-    name = doc["name"]
-    if not isinstance(name, str) or not _NAME.fullmatch(name):
-        raise where.at("name").error(f"{shown(name)} is not a safe run name ({_NAME_RULE})")
-    return name
-
-
-_NAME_RULE = ("1 to 64 ASCII letters, digits, '.', '_' or '-', not starting with '.' or '-': "
-              "it names the run's directory")
 
 
 def _check_link_loss_first(core: CoreConfig, policy: PolicySettings, where: Where) -> None:
@@ -220,9 +158,9 @@ def _refuse_unknown(doc: Mapping[str, Any], where: Where) -> None:
             raise where.at(key).error(f"unknown key (known: {', '.join(sorted(_TOP_KEYS))})")
     for section in SCENARIO_SECTIONS:
         if section != "allowlist":
-            _table(doc, section, where)
+            table(doc, section, where)
     check_keys(doc, where)
-    for phase, body in _table(doc, "phases", where).items():
+    for phase, body in table(doc, "phases", where).items():
         if not isinstance(body, dict):
             raise where.at("phases").at(phase).error("must be a table")
     allowlist = doc.get("allowlist", [])
@@ -240,11 +178,6 @@ def _check_keys(table: Mapping[str, Any], known: frozenset[str], where: Where) -
             raise where.at(key).error(f"unknown key (known: {', '.join(sorted(known))})")
 
 
-def _table(doc: Mapping[str, Any], key: str, where: Where) -> Mapping[str, Any]:
-    value = doc.get(key, {})
-    if not isinstance(value, dict):
-        raise where.at(key).error("must be a table")
-    return value
 
 
 def _policy(settings: PolicySettings, where: Where) -> PolicySettings:
@@ -265,16 +198,6 @@ def _policy(settings: PolicySettings, where: Where) -> PolicySettings:
     return settings
 
 
-def _safety(doc: Mapping[str, Any], where: Where, period_ns: int) -> SafetySettings | None:
-    if "safety" not in doc:
-        return None
-    settings: SafetySettings = _settings(SafetySettings, doc, "safety", where)
-    problem = check_against_period(settings, period_ns)
-    if problem:
-        raise ManifestError(f"{where.file}: safety.heartbeat_timeout_ms: {problem}")
-    return settings
-
-
 def is_loopback(host: str) -> bool:
     """``localhost`` or an address in 127.0.0.0/8 or ::1 (a name is not resolved: only
     ``localhost`` is known to stay on this host)."""
@@ -286,15 +209,8 @@ def is_loopback(host: str) -> bool:
         return False
 
 
-def _settings(cls: type, doc: Mapping[str, Any], key: str, where: Where) -> Any:
-    try:
-        return settings_from_mapping(cls, _table(doc, key, where), f"{where.file}: {key}")
-    except SettingsError as error:
-        raise ManifestError(str(error)) from None
-
-
 def _read(cls: type, doc: Mapping[str, Any], key: str, where: Where) -> Any:
-    return read_table(cls, _table(doc, key, where), where.at(key))
+    return read_table(cls, table(doc, key, where), where.at(key))
 
 
 def _trial(doc: Mapping[str, Any], where: Where) -> TrialEnvelope | None:

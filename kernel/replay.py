@@ -24,7 +24,7 @@ from kernel.core.jobs import run_job
 from kernel.core.lines import Line, encode
 from kernel.core.runtime import Core
 from kernel.journal import CommandOrigin, CommandRecord
-from kernel.scenario import Scenario
+from kernel.scenario.load import Scenario
 
 
 @dataclass(slots=True)

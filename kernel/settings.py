@@ -16,6 +16,10 @@ from msgspec import Meta
 
 from assurance.kinematics import WorkspaceBox
 from kernel.core.config import TrialBounds
+
+# [emulator] is read by the safety monitor too, so its type lives below both readers.
+from kernel.manifest_tables import EmulatorSettings as EmulatorSettings
+from kernel.manifest_tables import PlantKind as PlantKind
 from kernel.scenario import bounds
 from kernel.scenario.workspace import Coordinate, WristForce
 
@@ -42,19 +46,6 @@ class CellSettings(msgspec.Struct, frozen=True, kw_only=True):
     simulated_operator: bool = True
     """Accept recovery automatically once the arm rests under a fallback owner. Simulation
     only: a manifest that drives a real device must set it false (a human recovers)."""
-
-
-class PlantKind(StrEnum):
-    MUJOCO = "mujoco"
-    KINEMATIC = "kinematic"
-
-
-class EmulatorSettings(msgspec.Struct, frozen=True, kw_only=True):
-    """``[emulator]``: simulation only."""
-
-    launch: bool = True
-    plant: PlantKind = PlantKind.MUJOCO
-    host: str = ""
 
 
 class OperatorSettings(msgspec.Struct, frozen=True, kw_only=True):

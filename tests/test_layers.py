@@ -17,6 +17,7 @@ A failure lists file:line, the import and the rule it breaks.
 from __future__ import annotations
 
 import ast
+import functools
 from collections.abc import Iterator
 from dataclasses import dataclass
 from enum import StrEnum
@@ -207,3 +208,185 @@ def test_relative_and_dynamic_imports_are_resolved() -> None:
     dynamic = "import importlib\n\nimportlib.import_module('kernel.wire')\n"
     [violation] = violations_in("stubs/policy_server/extra.py", dynamic)
     assert (violation.imported.line, violation.imported.module) == (3, "kernel.wire")
+
+
+# -- the safety monitor: independent of warden's core in code, not only in process -------------
+
+MONITOR = "kernel/safety"
+MONITOR_FORBIDDEN = ("kernel.core", "assurance", "skills", "pinocchio")
+"""What the monitor must not reach, directly or through any module it imports: warden's core
+and the robot model (docs/architecture.md, "The safety monitor")."""
+MONITOR_REACHES = frozenset({"assurance", "assurance.reasons"})
+"""The one exception (the package and its reason codes), reached only through ``drivers``:
+their error types carry the public reason codes (CONTRACT.md §3), an enum of names with no
+logic of the core. A module of the monitor may not import it itself."""
+
+
+def module_files(root: Path = ROOT) -> dict[str, Path]:
+    """Every module of the layered packages (package ``__init__`` included) → its file."""
+    found = {}
+    for package in sorted(LAYERS):
+        for file in sorted((root / package).rglob("*.py")):
+            parts = file.relative_to(root).with_suffix("").parts
+            found[".".join(parts[:-1] if parts[-1] == "__init__" else parts)] = file
+    return found
+
+
+def _loaded_by(name: str, modules: dict[str, Path]) -> list[str]:
+    """The project modules importing ``name`` runs: each enclosing package's ``__init__``, then
+    the longest prefix that is a module (``kernel.safety.checks.Sample`` is an attribute)."""
+    parts = name.split(".")
+    prefixes = [".".join(parts[:n]) for n in range(1, len(parts) + 1)]
+    return [p for p in prefixes if p in modules]
+
+
+def graph_of(root: Path) -> dict[str, set[str]]:
+    """The repository's import graph, built once per session; any other tree's, afresh."""
+    return _repository_graph() if root == ROOT else import_graph(root)
+
+
+@functools.cache
+def _repository_graph() -> dict[str, set[str]]:
+    return import_graph(ROOT)
+
+
+def import_graph(root: Path = ROOT) -> dict[str, set[str]]:
+    """Module → the modules it imports (third-party ones by their top name), wherever in the
+    file the import is (inside a function too: a lazy import is an import)."""
+    modules = module_files(root)
+    graph: dict[str, set[str]] = {}
+    for module, file in modules.items():
+        path = file.relative_to(root).as_posix()
+        edges = graph.setdefault(module, set())
+        for imported in imports_in(path, file.read_text(encoding="utf-8")):
+            edges.update(_loaded_by(imported.module, modules) if imported.top in PROJECT
+                         else {imported.top})
+        edges.discard(module)
+    return graph
+
+
+def reached_from(start: str, graph: dict[str, set[str]]) -> dict[str, str | None]:
+    """Every module ``start`` reaches → the module that imports it on one shortest path."""
+    parent: dict[str, str | None] = {start: None}
+    frontier = [start]
+    while frontier:
+        following = []
+        for module in frontier:
+            for imported in sorted(graph.get(module, ())):
+                if imported not in parent:
+                    parent[imported] = module
+                    following.append(imported)
+        frontier = following
+    return parent
+
+
+def _chain(module: str, parent: dict[str, str | None]) -> str:
+    chain = [module]
+    while (step := parent[chain[-1]]) is not None:
+        chain.append(step)
+    return " → ".join(reversed(chain))
+
+
+def monitor_reaches_core(root: Path = ROOT) -> list[str]:
+    """Each forbidden module a module of the monitor reaches, with the chain that reaches it."""
+    graph = graph_of(root)
+    found = []
+    for start in sorted(m for m in graph if m.replace(".", "/").startswith(MONITOR)):
+        parent = reached_from(start, graph)
+        for module in sorted(parent):
+            forbidden = any(module == f or module.startswith(f + ".") for f in MONITOR_FORBIDDEN)
+            importer = parent[module] or ""
+            excused = module in MONITOR_REACHES and not importer.startswith("kernel.safety")
+            if forbidden and not excused:
+                found.append(_chain(module, parent))
+    return found
+
+
+def import_cycles(prefix: str, root: Path = ROOT) -> list[list[str]]:
+    """The import circles among the modules under ``prefix`` (strongly connected components
+    of more than one module), each sorted."""
+    graph = {m: {i for i in edges if i.startswith(prefix)}
+             for m, edges in graph_of(root).items() if m.startswith(prefix)}
+    return [sorted(c) for c in _components(graph) if len(c) > 1]
+
+
+def _components(graph: dict[str, set[str]]) -> list[set[str]]:
+    """Tarjan's strongly connected components."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    found: list[set[str]] = []
+
+    def visit(node: str) -> None:
+        index[node] = low[node] = len(index)
+        stack.append(node)
+        for nxt in sorted(graph.get(node, ())):
+            if nxt not in index:
+                visit(nxt)
+                low[node] = min(low[node], low[nxt])
+            elif nxt in stack:
+                low[node] = min(low[node], index[nxt])
+        if low[node] == index[node]:
+            component = set()
+            while True:
+                member = stack.pop()
+                component.add(member)
+                if member == node:
+                    break
+            found.append(component)
+
+    for node in sorted(graph):
+        if node not in index:
+            visit(node)
+    return found
+
+
+def test_the_safety_monitor_reaches_nothing_of_wardens_core() -> None:
+    reached = monitor_reaches_core()
+    if reached:
+        pytest.fail(f"the safety monitor reaches warden's core in {len(reached)} ways:\n"
+                    + "\n".join(reached), pytrace=False)
+
+
+def test_the_safety_monitor_has_no_import_circle() -> None:
+    cycles = import_cycles("kernel.safety")
+    if cycles:
+        pytest.fail("import circles in kernel/safety:\n"
+                    + "\n".join(" ↔ ".join(c) for c in cycles), pytrace=False)
+
+
+def _tree(root: Path, files: dict[str, str]) -> Path:
+    for name, source in files.items():
+        (root / name).parent.mkdir(parents=True, exist_ok=True)
+        (root / name).write_text(source)
+    return root
+
+
+def test_a_core_module_the_monitor_reaches_through_others_is_reported(tmp_path: Path) -> None:
+    root = _tree(tmp_path, {
+        "kernel/__init__.py": "", "kernel/safety/__init__.py": "",
+        "kernel/safety/service.py": "def plan():\n    from kernel.loader import load\n",
+        "kernel/loader.py": "from kernel.core.config import CoreConfig\n",
+        "kernel/core/__init__.py": "", "kernel/core/config.py": "import numpy\n",
+        "kernel/safety/codes.py": "from drivers.base import DriverInitError\n",
+        "drivers/__init__.py": "", "drivers/base.py": "from assurance.reasons import R\n",
+        "assurance/__init__.py": "", "assurance/reasons.py": "",
+    })
+    assert monitor_reaches_core(root) == [
+        "kernel.safety.service → kernel.loader → kernel.core",
+        "kernel.safety.service → kernel.loader → kernel.core.config",
+    ]
+    (root / "kernel/safety/codes.py").write_text("from assurance.reasons import R\n")
+    assert monitor_reaches_core(root)[:2] == ["kernel.safety.codes → assurance",
+                                              "kernel.safety.codes → assurance.reasons"]
+
+
+def test_an_import_circle_through_a_lazy_import_is_reported(tmp_path: Path) -> None:
+    root = _tree(tmp_path, {
+        "kernel/__init__.py": "", "kernel/safety/__init__.py": "",
+        "kernel/safety/devices.py": "def ur():\n    from kernel.safety.ur import URWatch\n",
+        "kernel/safety/ur.py": "from kernel.safety.devices import DeviceLost\n",
+        "kernel/safety/checks.py": "import math\n",
+    })
+    assert import_cycles("kernel.safety", root) == [["kernel.safety.devices",
+                                                      "kernel.safety.ur"]]

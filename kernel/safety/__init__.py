@@ -5,6 +5,7 @@ A process of its own, beside warden: its own connection to the device where the 
 a second one, its own stop path, its own checks of joints, speeds and wrist force against the
 manifest's limits, and warden's heartbeat. None of warden's core, gates, motion layer or
 driver control code runs in it (the CiA 402 listener takes the driver's settings, bus opening,
-PDO mapping and unit conversion: data and arithmetic); it reads the manifest with warden's
-loader (the very limits warden was given).
+PDO mapping and unit conversion: data and arithmetic); it reads the manifest through its own
+view (:mod:`kernel.safety.view`) with the parsers warden's loader uses for those tables (the
+very limits warden was given), and imports nothing of warden's core (tests/test_layers.py).
 """

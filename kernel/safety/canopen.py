@@ -44,11 +44,11 @@ from drivers.canopen402.link import open_bus
 from drivers.canopen402.settings import CiA402Settings
 from drivers.canopen402.tables import NMT_COB_ID, Index, NmtCommand
 from drivers.settings import SettingsError
-from kernel.manifest import Manifest
 from kernel.safety.canopen_view import BusView, Notice, NoticeKind
 from kernel.safety.checks import Sample
-from kernel.safety.devices import DeviceLost, DeviceUnreachable, StopResult
 from kernel.safety.settings import SafetySettings
+from kernel.safety.view import MonitorView
+from kernel.safety.watch import DeviceLost, DeviceUnreachable, StopResult
 
 log = structlog.get_logger("warden.safety")
 DRAIN_LIMIT = 20_000
@@ -79,7 +79,7 @@ class CiA402Watch:
         self._read_empty_at = time.monotonic()
 
     @classmethod
-    def from_manifest(cls, manifest: Manifest, safety: SafetySettings) -> CiA402Watch:
+    def from_manifest(cls, manifest: MonitorView, safety: SafetySettings) -> CiA402Watch:
         """Raises:
             DeviceUnreachable: the manifest does not name the bus, or does not make the drives
                 quick-stop on NMT STOPPED.

@@ -1,7 +1,8 @@
 """What the monitor checks on every sample: plain comparisons, written for the monitor alone.
 
-The limits are the manifest's numbers (the ``[robot]`` limits warden enforces, read through the
-same manifest loader, plus the ``[safety]`` margins and force limit); nothing here runs warden's
+The limits are the manifest's numbers (the ``[robot]`` limits warden enforces, read by the
+monitor's own view with the same parser warden's configuration uses, plus the ``[safety]``
+margins and force limit); nothing here runs warden's
 gates, projection or motion code, so a mistake there is not a mistake here.
 """
 
@@ -12,7 +13,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from enum import StrEnum
 
-from kernel.manifest import Manifest
+from kernel.manifest_tables import RobotLimits
 from kernel.safety.settings import SafetySettings
 
 
@@ -66,15 +67,12 @@ class Limits:
     velocity_margin: float
 
     @classmethod
-    def from_manifest(cls, manifest: Manifest, safety: SafetySettings) -> Limits:
+    def of(cls, robot: RobotLimits, safety: SafetySettings) -> Limits:
         """The arm joints' limits (the gripper's dimension, if any, is not an arm joint)."""
-        limits = manifest.core.limits
-        arm = [i for i in range(limits.lower.shape[0]) if i != limits.gripper_index]
-        return cls(tuple(float(limits.lower[i]) for i in arm),
-                   tuple(float(limits.upper[i]) for i in arm),
-                   tuple(float(limits.velocity[i]) for i in arm),
-                   safety.max_wrist_force_n, safety.position_margin_rad,
-                   safety.velocity_margin)
+        arm = robot.arm
+        return cls(tuple(robot.lower[i] for i in arm), tuple(robot.upper[i] for i in arm),
+                   tuple(robot.velocity[i] for i in arm), safety.max_wrist_force_n,
+                   safety.position_margin_rad, safety.velocity_margin)
 
 
 def breaches(sample: Sample, limits: Limits) -> list[Finding]:

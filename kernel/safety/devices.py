@@ -17,73 +17,11 @@ allows one) and its stop path. One per driver name (:data:`WATCHES`):
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
-from typing import Protocol
 
-from kernel.manifest import Manifest
 from kernel.safety.checks import Sample
 from kernel.safety.settings import SafetySettings
-
-
-class DeviceUnreachable(Exception):
-    """The monitor cannot watch this device (at start: exit 2); the message says what to
-    check."""
-
-
-class DeviceLost(Exception):
-    """The monitor's view of the device went stale or stopped answering (a breach)."""
-
-
-@dataclass(frozen=True, slots=True)
-class StopResult:
-    done: bool
-    detail: str
-    """The device's answer, or why the stop could not be delivered."""
-
-
-class DeviceWatch(Protocol):
-    description: str
-    """The device and the monitor's connection to it, for logs and status."""
-    stop_path: str
-    """How this monitor stops the arm, or why it cannot."""
-    can_stop: bool
-    lives_in_warden: bool
-    """The device exists only inside warden's process (the simulated world): with no warden
-    run it is gone, and nothing can move."""
-
-    def connect(self) -> None:
-        """Open the connection and check the stop path answers.
-
-        Raises:
-            DeviceUnreachable: either cannot be reached; nothing was commanded.
-        """
-        ...
-
-    def sample(self) -> Sample | None:
-        """The newest reading; None: nothing to read now (a watch that reads no device, or CiA
-        402 drives that exchange no process data). A watch that can stop must read while warden
-        runs: the monitor counts None for longer than ``device_timeout_ms`` while warden's
-        heartbeat is alive as the device lost, unless it stopped the device in that run.
-
-        Raises:
-            DeviceLost: no fresh data within ``device_timeout_ms``, or the link is down.
-        """
-        ...
-
-    def stop(self) -> StopResult:
-        """Stop the arm through the monitor's own path; never raises."""
-        ...
-
-    def probe(self) -> str | None:
-        """Check that the stop path still answers (called about once a second while nothing
-        is wrong); the problem, or None. May reconnect."""
-        ...
-
-    def reconnect(self) -> bool:
-        """After a :class:`DeviceLost`: try once, with a short deadline; True if back."""
-        ...
-
-    def close(self) -> None: ...
+from kernel.safety.view import MonitorView
+from kernel.safety.watch import DeviceUnreachable, DeviceWatch, StopResult
 
 
 class HeartbeatOnly:
@@ -114,7 +52,7 @@ class HeartbeatOnly:
         """Nothing to close."""
 
 
-def _dynamixel(manifest: Manifest, settings: SafetySettings) -> DeviceWatch:
+def _dynamixel(manifest: MonitorView, settings: SafetySettings) -> DeviceWatch:
     port = manifest.driver_settings.get("port", "the manifest's serial port")
     return HeartbeatOnly(
         f"dynamixel bus on {port} (single master: warden; no second connection)",
@@ -122,25 +60,25 @@ def _dynamixel(manifest: Manifest, settings: SafetySettings) -> DeviceWatch:
         "warden's packets stop; the monitor reports only")
 
 
-def _canopen(manifest: Manifest, settings: SafetySettings) -> DeviceWatch:
+def _canopen(manifest: MonitorView, settings: SafetySettings) -> DeviceWatch:
     from kernel.safety.canopen import CiA402Watch  # imports canopen: only for a CiA 402 cell
 
     return CiA402Watch.from_manifest(manifest, settings)
 
 
-def _ur(manifest: Manifest, settings: SafetySettings) -> DeviceWatch:
+def _ur(manifest: MonitorView, settings: SafetySettings) -> DeviceWatch:
     from kernel.safety.ur import URWatch  # imports ur_rtde: only for a UR cell
 
     return URWatch.from_manifest(manifest, settings)
 
 
-def _sim(manifest: Manifest, settings: SafetySettings) -> DeviceWatch:
+def _sim(manifest: MonitorView, settings: SafetySettings) -> DeviceWatch:
     from kernel.safety.sim import SimWorldWatch
 
     return SimWorldWatch.from_manifest(manifest, settings)
 
 
-WATCHES: dict[str, Callable[[Manifest, SafetySettings], DeviceWatch]] = {
+WATCHES: dict[str, Callable[[MonitorView, SafetySettings], DeviceWatch]] = {
     "ur_rtde": _ur,
     "sim": _sim,
     "dynamixel": _dynamixel,
@@ -148,7 +86,7 @@ WATCHES: dict[str, Callable[[Manifest, SafetySettings], DeviceWatch]] = {
 }
 
 
-def watch_for(manifest: Manifest, settings: SafetySettings) -> DeviceWatch:
+def watch_for(manifest: MonitorView, settings: SafetySettings) -> DeviceWatch:
     """The watch for the manifest's driver (not yet connected).
 
     Raises:

@@ -27,9 +27,9 @@ from typing import Any
 import structlog
 
 from kernel.safety.checks import Breach, Finding, Limits, Sample, breaches
-from kernel.safety.devices import DeviceLost, DeviceWatch, StopResult
 from kernel.safety.heartbeat import HeartbeatReceiver, Pulse
 from kernel.safety.settings import SafetySettings
+from kernel.safety.watch import DeviceLost, DeviceWatch, StopResult
 
 log = structlog.get_logger("warden.safety")
 PROBE_EVERY_NS = 1_000_000_000

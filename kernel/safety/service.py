@@ -20,13 +20,14 @@ from pathlib import Path
 
 import structlog
 
-from kernel.manifest import Manifest, ManifestError, load_manifest
 from kernel.safety.checks import Limits
-from kernel.safety.devices import DeviceUnreachable, DeviceWatch, watch_for
+from kernel.safety.devices import watch_for
 from kernel.safety.heartbeat import HeartbeatReceiver
 from kernel.safety.monitor import Monitor
 from kernel.safety.settings import SafetySettings
 from kernel.safety.status import StatusServer, socket_problem
+from kernel.safety.view import MonitorView, ViewError, read_view
+from kernel.safety.watch import DeviceUnreachable, DeviceWatch
 from kernel.shell.device_lock import DeviceBusy, Holder, holding
 from kernel.shell.realtime import log_report, restore, try_realtime
 from kernel.shell.systemd import ServiceNotifier
@@ -44,21 +45,21 @@ class StartError(Exception):
 
 @dataclass(frozen=True, slots=True)
 class Plan:
-    manifest: Manifest
+    manifest: MonitorView
     settings: SafetySettings
     limits: Limits
     gid: int
 
 
 def plan(path: str) -> Plan:
-    """The manifest, checked for everything the monitor needs.
+    """The monitor's view of the manifest, checked for everything the monitor needs.
 
     Raises:
         StartError: what is missing or wrong, naming the file and the key.
     """
     try:
-        manifest = load_manifest(path)
-    except ManifestError as error:
+        manifest = read_view(path)
+    except ViewError as error:
         raise StartError(str(error)) from None
     settings = manifest.safety
     if settings is None:
@@ -74,7 +75,7 @@ def plan(path: str) -> Plan:
     except KeyError:
         raise StartError(f"{manifest.path}: safety.group: no group {group!r} on this "
                          "host") from None
-    return Plan(manifest, settings, Limits.from_manifest(manifest, settings), gid)
+    return Plan(manifest, settings, Limits.of(manifest.limits, settings), gid)
 
 
 def serve(path: str) -> None:

@@ -20,10 +20,10 @@ import math
 import socket
 from typing import Any
 
-from kernel.manifest import Manifest
 from kernel.safety.checks import Sample
-from kernel.safety.devices import DeviceLost, DeviceUnreachable, StopResult
 from kernel.safety.settings import SafetySettings
+from kernel.safety.view import MonitorView
+from kernel.safety.watch import DeviceLost, DeviceUnreachable, StopResult
 
 HOST = "127.0.0.1"
 STOP_TIMEOUT_S = 1.0
@@ -41,7 +41,7 @@ class SimWorldWatch:
         self._reader: Any = None
 
     @classmethod
-    def from_manifest(cls, manifest: Manifest, settings: SafetySettings) -> SimWorldWatch:
+    def from_manifest(cls, manifest: MonitorView, settings: SafetySettings) -> SimWorldWatch:
         """Raises:
             DeviceUnreachable: no ``sim_port`` in the manifest.
         """

@@ -20,12 +20,12 @@ import socket
 import time
 from typing import Any
 
-from kernel.manifest import Manifest
 from kernel.safety.checks import Sample
 from kernel.safety.dashboard import PORT as DASHBOARD_PORT
 from kernel.safety.dashboard import STOPPED, Dashboard, DashboardError
-from kernel.safety.devices import DeviceLost, DeviceUnreachable, StopResult
 from kernel.safety.settings import SafetySettings
+from kernel.safety.view import MonitorView
+from kernel.safety.watch import DeviceLost, DeviceUnreachable, StopResult
 
 RTDE_PORT = 30004
 VARIABLES = ["timestamp", "actual_q", "actual_qd", "actual_TCP_force", "runtime_state"]
@@ -49,7 +49,7 @@ class URWatch:
         self._fresh_at = 0.0
 
     @classmethod
-    def from_manifest(cls, manifest: Manifest, settings: SafetySettings) -> URWatch:
+    def from_manifest(cls, manifest: MonitorView, settings: SafetySettings) -> URWatch:
         """Raises:
             DeviceUnreachable: the manifest does not name the controller's address.
         """

@@ -21,16 +21,13 @@ from assurance.limits import JointLimits
 from assurance.policy import ForceBand, LinkLoss, PhasePolicy
 from assurance.watermarks import WatermarkConfig
 from kernel.core.config import CoreConfig, MotionConfig, TrialBounds
+from kernel.manifest_tables import ROBOT_KEYS, control_period_ms, robot_limits_table
 from kernel.scenario.bounds import (
     ACCELERATION_LIMIT_MAX,
     DEGRADE_AFTER_MAX,
-    DOF_MAX,
     DURATION_MAX_MS,
     FORCE_MAX_N,
     JERK_MAX,
-    PERIOD_MAX_MS,
-    PERIOD_MIN_MS,
-    POSITION_LIMIT_MAX,
     UNCERTAINTY_MAX_MS,
     VELOCITY_LIMIT_MAX,
 )
@@ -53,9 +50,7 @@ from kernel.scenario.trial import trial_bounds
 from skills.phases import Executor, PhaseBook, PhaseCard, TaskPhase
 
 SECTION_KEYS: dict[str, frozenset[str]] = {
-    "robot": frozenset({"dof", "position_limits", "velocity_limits", "acceleration_limits",
-                        "gripper_index", "gripper_event_threshold", "kinematics", "model",
-                        "tcp_frame", "joints", "model_sha256", "workspace"}),
+    "robot": ROBOT_KEYS,
     "timing": frozenset({"control_period_ms", "clock_uncertainty_ms", "degrade_after",
                          "state_timeout_ms", "low_watermark_ms", "high_watermark_ms",
                          "request_retry_ms"}),
@@ -101,8 +96,7 @@ def build_config(doc: Mapping[str, Any], where: Where,
     limits = robot_limits(robot, where.at("robot"))
     kinematics = robot_kinematics(robot, where.at("robot"), limits)
     timing = mapping(doc, "timing", where, required=False)
-    period = number(timing, "control_period_ms", where.at("timing"), default=2.0,
-                    minimum=PERIOD_MIN_MS, maximum=PERIOD_MAX_MS)
+    period = control_period_ms(timing, where.at("timing"))
     uncertainty = number(timing, "clock_uncertainty_ms", where.at("timing"), 0.0, minimum=0,
                          maximum=UNCERTAINTY_MAX_MS)
     session_doc = mapping(doc, "session", where)
@@ -158,85 +152,16 @@ def motion_config(doc: Mapping[str, Any], where: Where) -> MotionConfig:
 
 
 def robot_limits(robot: Mapping[str, Any], where: Where) -> JointLimits:
-    dof = integer(robot, "dof", where, minimum=1, maximum=DOF_MAX)
-    grip = robot.get("gripper_index")
-    if grip is not None:
-        grip = integer(robot, "gripper_index", where, minimum=0)
-        if grip > dof:
-            raise where.at("gripper_index").error(f"must be at most dof ({dof}), got {grip}")
-    dim = dof + 1 if grip == dof else dof
-    lower, upper = _position_limits(robot, where, dim, grip)
-    velocity = _rate_limits(robot, "velocity_limits", where, dim, grip, VELOCITY_LIMIT_MAX)
-    acceleration = _rate_limits(robot, "acceleration_limits", where, dim, grip,
-                                ACCELERATION_LIMIT_MAX)
+    """The core's joint limits, from the one ``[robot]`` parser the safety monitor shares."""
+    table = robot_limits_table(robot, where)
     try:
         return JointLimits(
-            lower, upper, velocity, acceleration, gripper_index=grip,
-            gripper_event_threshold=number(robot, "gripper_event_threshold", where, 1e-3,
-                                           minimum=0, maximum=POSITION_LIMIT_MAX),
+            np.array(table.lower), np.array(table.upper), np.array(table.velocity),
+            np.array(table.acceleration), gripper_index=table.gripper_index,
+            gripper_event_threshold=table.gripper_event_threshold,
         )
     except ValueError as error:
         raise where.error(str(error)) from None
-
-
-def _pad_gripper(values: list[float], dim: int, grip: int | None, fill: float) -> list[float]:
-    if len(values) == dim - 1 and grip is not None:
-        return [*values[:grip], fill, *values[grip:]]
-    return values
-
-
-def _position_limits(
-    robot: Mapping[str, Any], where: Where, dim: int, grip: int | None
-) -> tuple[np.ndarray, np.ndarray]:
-    here = where.at("position_limits")
-    raw = robot.get("position_limits")
-    if raw is None:
-        raise where.error("missing required key 'position_limits' (every joint needs one: "
-                          "a limit never defaults to unbounded)")
-    if is_number(raw):
-        bound = abs(number(robot, "position_limits", where, maximum=POSITION_LIMIT_MAX,
-                           minimum=-POSITION_LIMIT_MAX))
-        return np.full(dim, -bound), np.full(dim, bound)
-    if isinstance(raw, dict):
-        low_key = "lower" if "lower" in raw else "min"
-        high_key = "upper" if "upper" in raw else "max"
-        lower = vector(raw.get(low_key), here.at(low_key), bound=POSITION_LIMIT_MAX)
-        upper = vector(raw.get(high_key), here.at(high_key), bound=POSITION_LIMIT_MAX)
-    elif isinstance(raw, list) and all(isinstance(p, list) and len(p) == 2 for p in raw) and (
-        len(raw) in (dim, dim - 1)
-    ):
-        pairs = [vector(p, here.at(i), 2, bound=POSITION_LIMIT_MAX) for i, p in enumerate(raw)]
-        lower, upper = [p[0] for p in pairs], [p[1] for p in pairs]
-    else:
-        raise here.error("must be a list of [lower, upper] pairs, {lower, upper}, or a number")
-    lower = _pad_gripper(lower, dim, grip, -math.inf)
-    upper = _pad_gripper(upper, dim, grip, math.inf)
-    if len(lower) != dim or len(upper) != dim:
-        raise here.error(f"has {len(lower)} entries, the robot has {dim} dimensions")
-    for index, (low, high) in enumerate(zip(lower, upper, strict=True)):
-        if low > high:
-            raise here.at(index).error(f"lower limit {low} exceeds upper limit {high}")
-    return np.array(lower), np.array(upper)
-
-
-def _rate_limits(
-    robot: Mapping[str, Any], key: str, where: Where, dim: int, grip: int | None,
-    bound: float,
-) -> np.ndarray:
-    raw = robot.get(key)
-    here = where.at(key)
-    if raw is None:
-        raise where.error(f"missing required key {key!r} (every joint needs one: a limit "
-                          "never defaults to unbounded)")
-    if is_number(raw):
-        values = [number(robot, key, where, positive=True, maximum=bound)] * dim
-    else:
-        values = _pad_gripper(vector(raw, here, bound=bound), dim, grip, math.inf)
-    if len(values) != dim:
-        raise here.error(f"has {len(values)} entries, the robot has {dim} dimensions")
-    if any(v <= 0 for v in values):
-        raise here.error("must be positive")
-    return np.array(values)
 
 
 # -- phases -------------------------------------------------------------------------------------

@@ -28,15 +28,14 @@ import hashlib
 import json
 import os
 import re
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from enum import StrEnum
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 from drivers import registry
 from drivers.base import DriverInitError
-from kernel.manifest import Manifest
 
 LOCK_DIR_ENV = "WARDEN_LOCK_DIR"
 
@@ -49,6 +48,28 @@ class Holder(StrEnum):
 DEFAULT_DIRS: dict[Holder, Path] = {Holder.WARDEN: Path("/run/warden/locks"),
                                     Holder.MONITOR: Path("/run/warden-safety/locks")}
 SLUG_CHARS = 60
+
+
+class _Emulator(Protocol):
+    @property
+    def launch(self) -> bool: ...
+
+
+class Addressed(Protocol):
+    """What the lock reads of a manifest: warden's :class:`kernel.manifest.Manifest` and the
+    safety monitor's own view (:class:`kernel.safety.view.MonitorView`) both have it, so the
+    monitor takes the lock without loading warden's configuration."""
+
+    @property
+    def name(self) -> str: ...
+    @property
+    def path(self) -> Path: ...
+    @property
+    def driver_name(self) -> str: ...
+    @property
+    def driver_settings(self) -> Mapping[str, Any]: ...
+    @property
+    def emulator(self) -> _Emulator: ...
 
 
 class DeviceBusy(DriverInitError):
@@ -80,7 +101,7 @@ _HELD: list[DeviceLock] = []
 """The locks this process holds (a run notes its directory in each)."""
 
 
-def device_of(manifest: Manifest) -> str | None:
+def device_of(manifest: Addressed) -> str | None:
     """The identity of the device a manifest's driver addresses; None when no other process
     could reach it (the in-process plant, python-can's virtual bus, an emulator this run
     launches for itself at an address of its own)."""
@@ -94,7 +115,7 @@ def device_of(manifest: Manifest) -> str | None:
 
 
 @contextlib.contextmanager
-def holding(manifest: Manifest, command: str,
+def holding(manifest: Addressed, command: str,
             holder: Holder = Holder.WARDEN) -> Iterator[DeviceLock | None]:
     """The device lock for ``manifest``'s device while the block runs (None: no device to lock).
 

@@ -10,7 +10,7 @@ import msgspec
 from kernel.core.lines import encode
 from kernel.manifest import ClockKind, Manifest, load_manifest
 from kernel.replay import Replay
-from kernel.scenario import load_scenario
+from kernel.scenario.load import load_scenario
 
 MANIFESTS = Path(__file__).resolve().parents[2] / "manifests"
 

@@ -8,7 +8,7 @@ in ``make fuzz``). The same functions serve both.
   policy link does: a :class:`~kernel.wire.Frame` and a message, or ``ProtocolViolation``.
 - ``wire_chunk``: :func:`assurance.envelope.decode_wire_chunk`: a chunk or a malformed chunk,
   never an exception (a broken chunk is a refusal with reason codes, not a crash).
-- ``scenario``: :func:`kernel.scenario.load_scenario` (scenario or journal): a scenario or
+- ``scenario``: :func:`kernel.scenario.load.load_scenario` (scenario or journal): a scenario or
   ``ScenarioError``.
 - ``manifest``: :func:`preflight`, everything ``warden run`` checks before anything starts
   (:func:`kernel.cli_run.checked_manifest`, then the world's own checks: the ``[driver]``
@@ -32,7 +32,7 @@ from kernel import wire
 from kernel.app.compose import world_for
 from kernel.cli_run import checked_manifest
 from kernel.manifest import Manifest, ManifestError
-from kernel.scenario import ScenarioError, load_scenario
+from kernel.scenario.load import ScenarioError, load_scenario
 from kernel.wire import MessageType, ProtocolViolation
 
 CLIENT_RECEIVE_NS = 5_000_000_000

@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 from kernel.core.events import ChunkEvent
 from kernel.core.lines import encode
 from kernel.core.runtime import Core
-from kernel.scenario import Scenario, load_scenario
+from kernel.scenario.load import Scenario, load_scenario
 from tests.runtime.machine_setup import feed
 
 ROOT = Path(__file__).resolve().parents[2] / "manifests" / "scenarios"

@@ -25,8 +25,8 @@ from typing import Any
 import pytest
 
 from kernel.cli_operator import send
-from kernel.manifest import load_manifest
 from kernel.safety.canopen import CiA402Watch
+from kernel.safety.view import read_view
 from stubs.cell.operator import RECOVERABLE
 from stubs.fault_control import inject
 from tests.cell.test_kill_warden import emulator_for
@@ -97,8 +97,8 @@ def test_the_listener_sees_what_warden_moves_and_a_whole_cycle_trips_nothing(
     manifest = canopen_manifest(tmp_path, bus, device_timeout_ms=DEVICE_TIMEOUT_MS,
                                 **QUIET_HEARTBEAT)
     monitor = Monitor(manifest, tmp_path)
-    listener = CiA402Watch.from_manifest(load_manifest(manifest), load_manifest(
-        manifest).safety)  # a second listener, in the test, to compare with the ground truth
+    view = read_view(manifest)  # a second listener, in the test, to compare with the truth
+    listener = CiA402Watch.from_manifest(view, view.safety)
     warden: Warden | None = None
     try:
         monitor.wait_connected()

@@ -22,8 +22,8 @@ from drivers.canopen402 import CiA402Driver
 from drivers.canopen402.tables import TPDO_COB_BASE
 from drivers.lifecycle import ManagedDriver
 from kernel.safety.canopen import CiA402Watch
-from kernel.safety.devices import DeviceLost
 from kernel.safety.settings import SafetySettings
+from kernel.safety.watch import DeviceLost
 from stubs.cia402_drive import DriveEmulator
 from stubs.cia402_drive.profile import PowerState
 from stubs.cia402_drive.supervision import ConnectionLoss

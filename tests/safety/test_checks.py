@@ -5,9 +5,9 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-from kernel.manifest import load_manifest
 from kernel.safety.checks import Breach, Limits, Sample, breaches
 from kernel.safety.settings import SafetySettings
+from kernel.safety.view import read_view
 
 MANIFESTS = Path(__file__).resolve().parents[2] / "manifests"
 LIMITS = Limits(lower=(-1.0, -2.0), upper=(1.0, 2.0), velocity=(1.0, 2.0), max_force_n=50.0,
@@ -44,7 +44,7 @@ def test_no_wrist_sensor_no_force_check() -> None:
 
 
 def test_limits_are_the_manifests_arm_joints() -> None:
-    manifest = load_manifest(MANIFESTS / "sim-ur5e-rtde.toml")
-    limits = Limits.from_manifest(manifest, SafetySettings(max_wrist_force_n=80.0))
+    view = read_view(MANIFESTS / "sim-ur5e-rtde.toml")
+    limits = Limits.of(view.limits, SafetySettings(max_wrist_force_n=80.0))
     assert limits.lower == (-6.2832, -6.2832, -3.1416, -6.2832, -6.2832, -6.2832)
     assert limits.velocity == (3.1416,) * 6 and limits.max_force_n == 80.0

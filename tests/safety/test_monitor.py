@@ -12,10 +12,11 @@ from pathlib import Path
 import pytest
 
 from kernel.safety.checks import Limits, Sample
-from kernel.safety.devices import DeviceLost, HeartbeatOnly, StopResult
+from kernel.safety.devices import HeartbeatOnly
 from kernel.safety.heartbeat import HeartbeatReceiver
 from kernel.safety.monitor import Monitor
 from kernel.safety.settings import SafetySettings
+from kernel.safety.watch import DeviceLost, StopResult
 from kernel.shell.heartbeat import Beat, BeatKind
 
 MS = 1_000_000

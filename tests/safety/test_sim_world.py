@@ -9,8 +9,8 @@ from collections.abc import Iterator
 import pytest
 
 from drivers.base import Command, CommandKind, ControlConfig
-from kernel.safety.devices import DeviceLost
 from kernel.safety.sim import SimWorldWatch
+from kernel.safety.watch import DeviceLost
 from stubs.cell.sim_world import SimWorld
 from stubs.plant.base import UR5E_HOME, KinematicPlant
 from stubs.plant.brake import BrakedPlant

@@ -10,8 +10,8 @@ from hypothesis import strategies as st
 from kernel.core.events import ClockSyncEvent
 from kernel.journal import JournalWriter, header
 from kernel.manifest import load_manifest
-from kernel.scenario import load_scenario
 from kernel.scenario.events import MAX_NS
+from kernel.scenario.load import load_scenario
 
 MANIFEST = Path(__file__).resolve().parents[2] / "manifests" / "sim-ur5e.toml"
 SECTIONS = load_manifest(MANIFEST).sections

@@ -8,7 +8,7 @@ import msgspec
 import pytest
 
 from kernel.replay import check_expectations, replay_bytes
-from kernel.scenario import load_scenario
+from kernel.scenario.load import load_scenario
 from tools.scenarios.catalog import all_documents
 
 ROOT = Path(__file__).resolve().parents[2]
