@@ -20,11 +20,12 @@ they would wait for a frame that the loop itself has to dispatch.
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import functools
 import math
 import time
 from collections.abc import Callable, Mapping
-from typing import Any, TypeVar
+from typing import ClassVar, TypeVar
 
 import can
 from canopen.sdo import SdoAbortedError, SdoCommunicationError
@@ -35,6 +36,7 @@ from drivers.base import (
     Command,
     CommandKind,
     ControlConfig,
+    Driver,
     DriverError,
     DriverInitError,
     DriverIOError,
@@ -62,7 +64,14 @@ T = TypeVar("T")
 FIRST_CYCLE_TIMEOUT_S = 1.0
 
 
-class CiA402Driver:
+class CiA402Driver(Driver):
+    settings_type = CiA402Settings
+    capabilities = frozenset({CommandKind.POSITION, CommandKind.HOLD, CommandKind.STOP})
+    """Cyclic synchronous position only: no VELOCITY (CSV) and no IMPEDANCE (CST with a
+    compliance law warden does not run), so compliant targets go out as positions."""
+    address_keys: ClassVar[Mapping[str, str]] = {"interface": "udp_multicast",
+                                                 "channel": "239.0.0.1"}
+    default_name = "canopen402"
     device_watchdog = staticmethod(settings_module.device_watchdog)
     """What stops the arm when warden's commands stop, per manifest table (None: off)."""
     device_identity = staticmethod(settings_module.device_identity)
@@ -94,12 +103,9 @@ class CiA402Driver:
         self._watchdog = DriveWatchdog(settings)
 
     @classmethod
-    def from_mapping(cls, table: Mapping[str, Any], where: str = "canopen402",
-                     name: str | None = None) -> CiA402Driver:
-        """Build from a manifest table; ``name`` is used when the table does not set one."""
-        if name is not None and "name" not in table:
-            table = {**table, "name": name}
-        return cls(CiA402Settings.from_mapping(table, where))
+    def from_settings(cls, settings: CiA402Settings, name: str | None = None) -> CiA402Driver:
+        """The drives' errors name them by ``settings.name``: ``name`` replaces it."""
+        return cls(settings if name is None else dataclasses.replace(settings, name=name))
 
     @property
     def cycle(self) -> BusCycle | None:
@@ -324,7 +330,7 @@ class CiA402Driver:
 
     # -- checks --------------------------------------------------------------------------------
 
-    async def inspect(self) -> tuple[Finding, ...]:
+    async def inspect(self) -> tuple[Finding, ...] | None:
         """Each drive's objects against the settings and limits (reads only; ``warden check``,
         see :mod:`drivers.canopen402.inspection`)."""
         self._check()

@@ -31,7 +31,7 @@ import asyncio
 import math
 import time
 from collections.abc import Callable, Mapping
-from typing import Any, TypeVar
+from typing import ClassVar, TypeVar
 
 from assurance.reasons import ReasonCode
 from drivers.base import (
@@ -40,6 +40,7 @@ from drivers.base import (
     CommandKind,
     ControlConfig,
     DeviceFault,
+    Driver,
     DriverError,
     DriverInitError,
     DriverIOError,
@@ -49,7 +50,6 @@ from drivers.base import (
 )
 from drivers.device_thread import DeviceThread
 from drivers.readiness import Finding
-from drivers.settings import SettingsError
 from drivers.ur_rtde import inspection, tables
 from drivers.ur_rtde import settings as settings_module
 from drivers.ur_rtde.link import Link, LinkDown, LinkStalled, Mode, Snapshot
@@ -61,9 +61,16 @@ CLOSE_TIMEOUT_S = 10.0
 """aclose waits this long: ur_rtde's disconnect can sit out its own 2.5 s read deadline."""
 
 
-class URRTDEDriver:
+class URRTDEDriver(Driver):
     """One UR arm. ``settings`` come from the manifest; ``name`` labels errors and traces."""
 
+    settings_type = URSettings
+    capabilities = frozenset({CommandKind.POSITION, CommandKind.VELOCITY, CommandKind.HOLD,
+                              CommandKind.STOP})
+    """No IMPEDANCE: servoJ and speedJ only (the controller's force mode is not joint-space
+    impedance), so compliant targets go out as positions."""
+    address_keys: ClassVar[Mapping[str, str]] = {"host": "127.0.0.1"}
+    default_name = "ur_rtde"
     device_watchdog = staticmethod(settings_module.device_watchdog)
     """What stops the arm when warden's commands stop, per manifest table (None: off)."""
     device_identity = staticmethod(settings_module.device_identity)
@@ -87,17 +94,6 @@ class URRTDEDriver:
         self._stopping: asyncio.Future[None] | None = None
         """A stop under way on the device thread: the loop's ticks go on meanwhile."""
         self._last: StateSample | None = None
-
-    @classmethod
-    def from_mapping(cls, table: Mapping[str, Any], where: str, name: str = "ur_rtde"
-                     ) -> URRTDEDriver:
-        """Build from a manifest table; bad settings raise DriverInitError naming the host."""
-        try:
-            return cls(URSettings.from_mapping(table, where), name)
-        except SettingsError as error:
-            host = table.get("host", "<no host>")
-            raise DriverInitError(name, f"bad settings for the UR arm at {host}: {error}"
-                                  ) from error
 
     @property
     def controller_time_s(self) -> float | None:
@@ -225,7 +221,7 @@ class URRTDEDriver:
         await self._run(link.end_streaming, timeout_s=self.settings.stop_timeout_s)
         await self._run(link.disarm_watchdog, timeout_s=self.settings.stop_timeout_s)
 
-    async def inspect(self) -> tuple[Finding, ...]:
+    async def inspect(self) -> tuple[Finding, ...] | None:
         """The controller's status words and speed factors against what a run needs (reads)."""
         status = await self._run(inspection.read_status, self._link_or_raise())
         return inspection.findings(self.settings, self._version, status, self._watchdog_hz)

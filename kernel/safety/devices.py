@@ -115,7 +115,7 @@ class HeartbeatOnly:
 
 
 def _dynamixel(manifest: Manifest, settings: SafetySettings) -> DeviceWatch:
-    port = manifest.driver_settings.get("port", "the manifest's serial port")
+    port = manifest.driver_settings.port
     return HeartbeatOnly(
         f"dynamixel bus on {port} (single master: warden; no second connection)",
         "the servos' Bus Watchdog (register 98, armed by the driver) stops each servo when "

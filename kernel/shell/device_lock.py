@@ -87,10 +87,10 @@ def device_of(manifest: Manifest) -> str | None:
     if manifest.emulator.launch or manifest.driver_name == "sim":
         return None
     try:
-        declared = getattr(registry.load(manifest.driver_name), "device_identity", None)
+        driver = registry.load(manifest.driver_name)
     except registry.UnknownDriver:
-        return None  # refused by name when the world is built
-    return declared(manifest.driver_settings) if declared is not None else None
+        return None  # refused by name when the manifest is loaded
+    return driver.device_identity(manifest.driver_settings)
 
 
 @contextlib.contextmanager
