@@ -197,7 +197,11 @@ class URRTDEDriver(Driver):
                                        timeout_s=self._setpoint_timeout(link, Mode.SPEED))
         if command.kind is CommandKind.HOLD:
             return await self.hold()
-        return await self._stop()
+        if command.kind is CommandKind.STOP:
+            return await self._stop()
+        # Not one of ``capabilities`` (IMPEDANCE): the lifecycle never sends it; this one
+        # came around it, and used to become a stop.
+        return await self._refused_and_kicked(command.kind, ReasonCode.CONTROLLER_MODE_MISMATCH)
 
     async def hold(self) -> Applied:
         """Servo to the measured position while streaming; stopJ when not streaming."""
@@ -280,11 +284,12 @@ class URRTDEDriver(Driver):
                               f"{self.settings.host} did not confirm setWatchdog("
                               f"{frequency_hz:g} Hz)", ReasonCode.CONTROLLER_REJECT)
 
-    async def _refused_and_kicked(self, kind: CommandKind) -> Applied:
+    async def _refused_and_kicked(self, kind: CommandKind,
+                                  reason: ReasonCode = ReasonCode.NONFINITE) -> Applied:
         """A setpoint refused before it reached the library: nothing went out, so kick the
         watchdog (warden is alive; what to do about bad setpoints is the kernel's call)."""
         await self._run(self._link_or_raise().kick_watchdog)
-        return _refused(kind, ReasonCode.NONFINITE)
+        return _refused(kind, reason)
 
     async def _read_checked(self, streaming: bool) -> Snapshot:
         link = self._link_or_raise()
