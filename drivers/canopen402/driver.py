@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import asyncio
 import dataclasses
-import functools
 import math
 import time
 from collections.abc import Callable, Mapping
@@ -52,6 +51,7 @@ from drivers.canopen402.drive_state import FAULTY, check_running, current_state,
 from drivers.canopen402.gripper import Gripper
 from drivers.canopen402.health import HealthMonitor
 from drivers.canopen402.link import Link, build_link
+from drivers.canopen402.process_data import joint_readings, start_bus_cycle
 from drivers.canopen402.settings import CiA402Settings
 from drivers.canopen402.tables import Command as Controlword
 from drivers.canopen402.tables import DriveState, Index
@@ -159,25 +159,10 @@ class CiA402Driver(Driver):
 
     def _start_cycle(self, control: ControlConfig) -> None:
         link = self._require_link()
-        nodes = link.nodes
         self._targets = tuple(node.rpdo[1][Index.TARGET_POSITION] for node in link.joints)
         if link.gripper is not None:
             self._gripper = Gripper(link.gripper, self.settings.gripper_scale())
-        tpdos = [(node.id, node.tpdo[n]) for node in nodes for n in list(node.tpdo)]
-        tpdos = [(node_id, pdo) for node_id, pdo in tpdos if pdo.enabled and pdo.cob_id]
-        self._cycle = BusCycle(
-            self._require_link().network, [node.rpdo[1] for node in nodes],
-            [(node_id, int(pdo.cob_id or 0)) for node_id, pdo in tpdos],
-            control.period_ns * 1e-9,
-        )
-        for node_id, pdo in tpdos:
-            pdo.add_callback(functools.partial(self._on_tpdo, node_id, int(pdo.cob_id or 0)))
-        self._cycle.start()
-
-    def _on_tpdo(self, node_id: int, cob_id: int, _pdo: object) -> None:
-        self._health.on_tpdo(node_id)
-        if self._cycle is not None:
-            self._cycle.on_tpdo(node_id, cob_id)
+        self._cycle = start_bus_cycle(link, control.period_ns * 1e-9, self._health.on_tpdo)
 
     async def activate(self) -> None:
         self._check()
@@ -313,17 +298,12 @@ class CiA402Driver(Driver):
                                 f"{error}") from error
 
     def _sample(self) -> StateSample:
-        q, qd, effort = [], [], []
-        for node, scale, rated in zip(self._require_link().joints, self._scales,
-                                      self._rated_torque, strict=True):
-            values = node.tpdo_values
-            q.append(scale.to_rad(values[Index.POSITION_ACTUAL]))
-            qd.append(scale.velocity_to_rad(values[Index.VELOCITY_ACTUAL]))
-            effort.append(scale.torque_to_nm(values[Index.TORQUE_ACTUAL], rated))
+        q, qd, effort = joint_readings(self._require_link().joints, self._scales,
+                                       self._rated_torque)
         self._seq += 1
         opening = self._gripper.opening() if self._gripper is not None else None
         return StateSample(seq=self._seq, t_mono_ns=time.monotonic_ns(), source=self.name,
-                           q=tuple(q), qd=tuple(qd), effort=tuple(effort), gripper=opening)
+                           q=q, qd=qd, effort=effort, gripper=opening)
 
     def _refuse(self, kind: CommandKind, reason: ReasonCode) -> Applied:
         return Applied(kind=kind, t_mono_ns=time.monotonic_ns(), accepted=False, reason=reason)

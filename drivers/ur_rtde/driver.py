@@ -50,7 +50,7 @@ from drivers.base import (
 )
 from drivers.device_thread import DeviceThread
 from drivers.readiness import Finding
-from drivers.ur_rtde import inspection, tables
+from drivers.ur_rtde import inspection, setpoints, tables
 from drivers.ur_rtde import settings as settings_module
 from drivers.ur_rtde.link import Link, LinkDown, LinkStalled, Mode, Snapshot
 from drivers.ur_rtde.probe import ControllerUnreachable, probe_controller
@@ -179,20 +179,20 @@ class URRTDEDriver(Driver):
         if command.kind is not CommandKind.STOP:
             self._stopped = False
         if command.kind is CommandKind.POSITION:
-            if not _well_formed(command.q):
+            if not setpoints.well_formed(command.q):
                 return await self._refused_and_kicked(command.kind)
             if self._watchdog_hz is not None and not link.watchdog.armed:
                 await self._arm_watchdog(link, self._watchdog_hz)
-            q = self._clip_position(command.q)
+            q = setpoints.clip_position(self._control, command.q)
             dt = max(self._period_s(), tables.CONTROLLER_CYCLE_S)
             return await self._applied(command.kind, lambda: link.servo_j(q, dt), q=q,
                                        timeout_s=self._setpoint_timeout(link, Mode.SERVO))
         if command.kind is CommandKind.VELOCITY:
-            if not _well_formed(command.qd):
+            if not setpoints.well_formed(command.qd):
                 return await self._refused_and_kicked(command.kind)
             if self._watchdog_hz is not None and not link.watchdog.armed:
                 await self._arm_watchdog(link, self._watchdog_hz)
-            qd = self._clip_velocity(command.qd)
+            qd = setpoints.clip_velocity(self._control, command.qd)
             return await self._applied(command.kind, lambda: link.speed_j(qd), qd=qd,
                                        timeout_s=self._setpoint_timeout(link, Mode.SPEED))
         if command.kind is CommandKind.HOLD:
@@ -289,7 +289,7 @@ class URRTDEDriver(Driver):
         """A setpoint refused before it reached the library: nothing went out, so kick the
         watchdog (warden is alive; what to do about bad setpoints is the kernel's call)."""
         await self._run(self._link_or_raise().kick_watchdog)
-        return _refused(kind, reason)
+        return setpoints.refused(kind, reason)
 
     async def _read_checked(self, streaming: bool) -> Snapshot:
         link = self._link_or_raise()
@@ -309,7 +309,7 @@ class URRTDEDriver(Driver):
             return Applied(kind=kind, t_mono_ns=time.monotonic_ns(), q=q, qd=qd)
         # The library says no without saying why: the status words do.
         await self._read_checked(streaming=True)
-        return _refused(kind, ReasonCode.CONTROLLER_REJECT)
+        return setpoints.refused(kind, ReasonCode.CONTROLLER_REJECT)
 
     async def _stop(self) -> Applied:
         """Stop once, without the loop waiting for it; a STOP repeated while the arm stays
@@ -392,22 +392,3 @@ class URRTDEDriver(Driver):
 
     def _period_s(self) -> float:
         return self._control.period_ns * 1e-9 if self._control else tables.CONTROLLER_CYCLE_S
-
-    def _clip_position(self, q: tuple[float, ...]) -> tuple[float, ...]:
-        if self._control is None:
-            return tuple(q)
-        low, high = self._control.q_lower, self._control.q_upper
-        return tuple(min(max(v, lo), hi) for v, lo, hi in zip(q, low, high, strict=True))
-
-    def _clip_velocity(self, qd: tuple[float, ...]) -> tuple[float, ...]:
-        limits = self._control.v_max if self._control else (tables.JOINT_VELOCITY_RANGE[1],) * 6
-        return tuple(min(max(v, -m), m) for v, m in zip(qd, limits, strict=True))
-
-
-def _well_formed(values: tuple[float, ...]) -> bool:
-    """Six finite numbers: anything else is refused before it reaches the library."""
-    return len(values) == tables.DOF and all(math.isfinite(v) for v in values)
-
-
-def _refused(kind: CommandKind, reason: ReasonCode) -> Applied:
-    return Applied(kind=kind, t_mono_ns=time.monotonic_ns(), accepted=False, reason=reason)
