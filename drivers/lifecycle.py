@@ -1,7 +1,8 @@
 """The kernel-owned lifecycle around every driver (ros2_control's hardware component, in Python).
 
 States: UNCONFIGURED → INACTIVE (connected and configured) → ACTIVE (streaming) → back to
-INACTIVE, and FAULT or CLOSED from anywhere. The wrapper calls ``write`` only when ACTIVE, turns
+INACTIVE, and FAULT or CLOSED from anywhere (what each allows: :class:`drivers.base.Driver`).
+The wrapper calls ``write`` only when ACTIVE and only with a kind the driver declares, turns
 any exception into FAULT with the error's reason code, and records the duration of every call.
 """
 
@@ -90,11 +91,9 @@ class ManagedDriver:
         self.state = DriverState.ACTIVE
 
     async def before_first_tick(self) -> None:
-        """The driver's optional ``before_first_tick`` hook (drivers/base.py), in ACTIVE only;
-        a driver without it has nothing to do there."""
-        hook = getattr(self.driver, "before_first_tick", None)
-        if self.state is DriverState.ACTIVE and hook is not None:
-            await self._call("before_first_tick", hook())
+        """The driver's ``before_first_tick`` hook (drivers/base.py), in ACTIVE only."""
+        if self.state is DriverState.ACTIVE:
+            await self._call("before_first_tick", self.driver.before_first_tick())
 
     async def deactivate(self) -> None:
         self._require(DriverState.ACTIVE, "deactivate")
@@ -110,21 +109,18 @@ class ManagedDriver:
         return sample
 
     async def write(self, command: Command) -> Applied:
-        """Send ``command`` if ACTIVE; otherwise refuse it without touching the device."""
+        """Send ``command`` if ACTIVE and its kind is one the driver declares; otherwise
+        refuse it without touching the device."""
         if self.state is not DriverState.ACTIVE:
-            return Applied(
-                kind=command.kind, t_mono_ns=time.monotonic_ns(), accepted=False,
-                reason=self.fault or ReasonCode.NO_AUTHORITY,
-            )
+            return _refused(command.kind, self.fault or ReasonCode.NO_AUTHORITY)
+        if command.kind not in self.driver.capabilities:
+            return _refused(command.kind, ReasonCode.CONTROLLER_MODE_MISMATCH)
         return await self._call("write", self.driver.write(command))
 
     async def hold(self) -> Applied:
         """Ask the device to hold; allowed in ACTIVE and INACTIVE (a hold moves nothing)."""
         if self.state not in (DriverState.ACTIVE, DriverState.INACTIVE):
-            return Applied(
-                kind=CommandKind.HOLD, t_mono_ns=time.monotonic_ns(), accepted=False,
-                reason=self.fault or ReasonCode.NO_AUTHORITY,
-            )
+            return _refused(CommandKind.HOLD, self.fault or ReasonCode.NO_AUTHORITY)
         return await self._call("hold", self.driver.hold())
 
     async def aclose(self) -> None:
@@ -179,6 +175,10 @@ class ManagedDriver:
         if self.last_sample is None:
             return StateSample(seq=-1, t_mono_ns=0, source=self.name, q=(), faults=faults)
         return msgspec.structs.replace(self.last_sample, faults=faults)
+
+
+def _refused(kind: CommandKind, reason: ReasonCode) -> Applied:
+    return Applied(kind=kind, t_mono_ns=time.monotonic_ns(), accepted=False, reason=reason)
 
 
 DriverFactory = Callable[..., Driver]

@@ -1,10 +1,11 @@
 """What a driver can tell ``warden check`` about its device without moving it.
 
-A driver that implements :class:`Inspectable` reads its device's own configuration (modes,
-limits, calibration, power state) and compares it with the settings and limits it was
-configured with; each comparison is one :class:`Finding`. Inspection only reads: no motion
-command, no parameter write. The kernel calls it while the driver is ACTIVE (the device holds on
-its own), after it has watched the device for a while, and before it deactivates it.
+A driver that overrides ``Driver.inspect`` (:mod:`drivers.base`; :class:`Inspectable` is its
+signature) reads its device's own configuration (modes, limits, calibration, power state) and
+compares it with the settings and limits it was configured with; each comparison is one
+:class:`Finding`. Inspection only reads: no motion command, no parameter write. The kernel
+calls it while the driver is ACTIVE (the device holds on its own), after it has watched the
+device for a while, and before it deactivates it.
 """
 
 from __future__ import annotations

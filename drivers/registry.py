@@ -7,8 +7,12 @@ run the others. No if/elif chain: adding a driver is one line here or one entry 
 from __future__ import annotations
 
 import importlib
+from collections.abc import Mapping
 from importlib.metadata import entry_points
 from typing import Any
+
+from drivers.base import Driver
+from drivers.settings import SettingsError, settings_from_mapping
 
 BUILTIN: dict[str, str] = {
     "sim": "drivers.sim.driver:SimDriver",
@@ -30,11 +34,42 @@ def available() -> dict[str, str]:
     return table
 
 
-def load(name: str) -> Any:
-    """The driver class registered under ``name``."""
+def load(name: str) -> type[Driver]:
+    """The driver class registered under ``name``.
+
+    Raises:
+        UnknownDriver: no driver has that name, or what is registered is not a
+            :class:`drivers.base.Driver`.
+    """
     table = available()
     if name not in table:
         known = ", ".join(sorted(table))
         raise UnknownDriver(f"unknown driver {name!r}; known drivers: {known}")
     module_name, _, attribute = table[name].partition(":")
-    return getattr(importlib.import_module(module_name), attribute)
+    found = getattr(importlib.import_module(module_name), attribute)
+    if not (isinstance(found, type) and issubclass(found, Driver)):
+        raise UnknownDriver(f"driver {name!r} ({table[name]}) is not a drivers.base.Driver: "
+                            "subclass it to declare the driver contract")
+    return found
+
+
+def settings_for(name: str, table: Mapping[str, Any], where: str, *,
+                 address_filled_in: bool = False) -> Any:
+    """The ``[driver]`` table (without ``name``) decoded into the settings type the driver
+    ``name`` declares, checked once: unknown keys, types and bounds.
+
+    ``address_filled_in``: the run fills in the device's address itself (an emulator it
+    launches), so the driver's ``address_keys`` may be missing: they are checked with their
+    placeholders.
+
+    Raises:
+        UnknownDriver: no driver has that name.
+        SettingsError: naming ``where.key``.
+    """
+    driver = load(name)
+    if address_filled_in:
+        table = {**driver.address_keys, **table}
+    return settings_from_mapping(driver.settings_type, table, where)
+
+
+__all__ = ["BUILTIN", "SettingsError", "UnknownDriver", "available", "load", "settings_for"]

@@ -62,6 +62,10 @@ class Harness:
     """How close a streamed target must be reached."""
     applied_tolerance: float = 1e-6
     """How far the applied setpoint may be from the commanded one (a quantised device rounds)."""
+    stiffness: float = 100.0
+    """Joint stiffness (N·m/rad) of the IMPEDANCE commands sent to a driver that declares it."""
+    damping: float = 10.0
+    """Joint damping (N·m·s/rad) of those commands."""
 
 
 def _expect(condition: bool, check: str, message: str) -> None:
@@ -197,6 +201,111 @@ async def check_timing_recorded(harness: Harness) -> None:
         await driver.aclose()
 
 
+MINIMUM_CAPABILITIES = frozenset({CommandKind.POSITION, CommandKind.HOLD, CommandKind.STOP})
+"""What every driver must execute: the core's setpoints and its two ways to bring the arm to
+rest."""
+PROBE_STEP = 0.05
+"""rad (or m): how far joint 0 is asked to go by a probing command."""
+
+
+async def check_capabilities(harness: Harness) -> None:
+    """``capabilities`` says what the driver does: every declared kind is accepted and acts
+    (VELOCITY and IMPEDANCE move joint 0 the way they say, STOP leaves the arm at rest), every
+    other kind is refused by the driver itself without moving the arm, and by the lifecycle
+    with CONTROLLER_MODE_MISMATCH before it reaches the driver."""
+    check = "capabilities"
+    driver = await _configured(harness)
+    try:
+        declared = driver.driver.capabilities
+        _expect(declared >= MINIMUM_CAPABILITIES, check, f"declares {sorted(declared)}, "
+                f"not every one of {sorted(MINIMUM_CAPABILITIES)}")
+        await driver.activate()
+        for kind in (CommandKind.VELOCITY, CommandKind.IMPEDANCE):
+            if kind in declared:
+                await _acts(driver, harness, kind)
+        for kind in sorted(set(CommandKind) - declared):
+            await _refused_whole(driver, harness, kind)
+        await _stops(driver, harness)
+    finally:
+        await driver.aclose()
+
+
+def _probe(kind: CommandKind, q: np.ndarray, harness: Harness) -> Command:
+    """A ``kind`` command that would move joint 0 by about :data:`PROBE_STEP` if obeyed."""
+    target = q.copy()
+    target[0] += PROBE_STEP
+    qd = np.zeros_like(q)
+    qd[0] = PROBE_STEP / 0.3
+    gains = (len(q) * (harness.stiffness,), len(q) * (harness.damping,))
+    if kind is CommandKind.VELOCITY:
+        return Command(kind=kind, qd=tuple(qd.tolist()))
+    if kind is CommandKind.IMPEDANCE:
+        return Command(kind=kind, q=tuple(target.tolist()), stiffness=gains[0],
+                       damping=gains[1])
+    return Command(kind=kind, q=tuple(target.tolist()), qd=tuple(qd.tolist()),
+                   stiffness=gains[0], damping=gains[1])
+
+
+async def _acts(driver: ManagedDriver, harness: Harness, kind: CommandKind) -> None:
+    """A declared VELOCITY or IMPEDANCE command, streamed for 0.3 s, moves joint 0 forward."""
+    check = f"capabilities: declared {kind}"
+    await _settled(driver, harness)
+    start = await _q(driver)
+    command = _probe(kind, start, harness)
+    period = harness.control.period_ns * 1e-9
+    for _ in range(max(1, int(0.3 / period))):
+        applied = await driver.write(command)
+        _expect(applied.accepted, check, f"refused ({applied.reason})")
+        await harness.advance(period)
+    moved = float((await _q(driver))[0] - start[0])
+    _expect(moved > PROBE_STEP / 4, check, f"joint 0 moved {moved:.4g} of about {PROBE_STEP}")
+
+
+async def _refused_whole(driver: ManagedDriver, harness: Harness, kind: CommandKind) -> None:
+    """An undeclared kind: the lifecycle refuses it, and so does the driver if called around
+    the lifecycle (no declaration understates what the driver would do with it)."""
+    check = f"capabilities: undeclared {kind}"
+    await _settled(driver, harness)
+    start = await _q(driver)
+    command = _probe(kind, start, harness)
+    refused = await driver.write(command)
+    _expect(not refused.accepted and refused.reason is ReasonCode.CONTROLLER_MODE_MISMATCH,
+            check, f"the lifecycle answered {refused.accepted} ({refused.reason})")
+    period = harness.control.period_ns * 1e-9
+    for _ in range(max(1, int(0.15 / period))):
+        applied = await driver.driver.write(command)
+        _expect(not applied.accepted, check, f"the driver accepted it (as {applied.kind})")
+        await driver.read()
+        await harness.advance(period)
+    drift = float(np.abs(await _q(driver) - start).max())
+    _expect(drift < harness.hold_tolerance, check, f"the arm moved {drift:.4g}")
+
+
+async def _stops(driver: ManagedDriver, harness: Harness) -> None:
+    """STOP is accepted and the arm comes to rest (sent every period, as the core does)."""
+    check = "capabilities: declared stop"
+    period = harness.control.period_ns * 1e-9
+    stop = Command(kind=CommandKind.STOP)
+    for _ in range(max(1, int(0.2 / period))):
+        applied = await driver.write(stop)
+        _expect(applied.accepted, check, f"refused ({applied.reason})")
+        await harness.advance(period)
+    before = await _q(driver)
+    for _ in range(max(1, int(0.1 / period))):
+        await driver.write(stop)
+        await harness.advance(period)
+    drift = float(np.abs(await _q(driver) - before).max())
+    _expect(drift < harness.hold_tolerance, check, f"the arm moved {drift:.4g} while stopped")
+
+
+async def _settled(driver: ManagedDriver, harness: Harness) -> None:
+    """Hold where the arm is, every period for 0.2 s (a device watchdog stays fed)."""
+    period = harness.control.period_ns * 1e-9
+    for _ in range(max(1, int(0.2 / period))):
+        await driver.write(Command(kind=CommandKind.HOLD))
+        await harness.advance(period)
+
+
 async def check_fault(harness: Harness, fault: str) -> None:
     """After ``fault`` is injected the driver goes to FAULT with the expected reason, still
     reads (the sample lists the fault) and refuses writes."""
@@ -246,6 +355,7 @@ CHECKS: dict[str, Callable[[Harness], Awaitable[None]]] = {
     "hold_keeps_position": check_hold_keeps_position,
     "aclose_twice": check_aclose_twice,
     "timing_recorded": check_timing_recorded,
+    "capabilities": check_capabilities,
 }
 """Every check that needs no fault, by name; ``check_fault`` runs once per fault."""
 
@@ -296,6 +406,9 @@ class DriverConformance:
 
     async def test_timing_recorded(self, harness: Harness) -> None:
         await check_timing_recorded(harness)
+
+    async def test_capabilities(self, harness: Harness) -> None:
+        await check_capabilities(harness)
 
     async def test_fault_maps_to_reason_and_read_after_fault(
         self, harness: Harness, fault_name: str

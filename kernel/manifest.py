@@ -18,6 +18,8 @@ from pathlib import Path
 from typing import Any
 
 from assurance.clock import ms_to_ns, ns_to_ms
+from drivers import registry
+from drivers.settings import SettingsError
 from kernel.core.config import CoreConfig
 from kernel.manifest_tables import driver_table, parse_toml, run_name, safety_table, table
 from kernel.safety.settings import SafetySettings
@@ -59,7 +61,9 @@ class Manifest:
     sections: dict[str, Any]
     """The scenario sections as written (the journal's header repeats them)."""
     driver_name: str
-    driver_settings: dict[str, Any]
+    driver_settings: Any
+    """``[driver]`` without ``name``, decoded once into the settings type that driver declares
+    (``settings_type`` of :class:`drivers.base.Driver`, resolved by :mod:`drivers.registry`)."""
     emulator: EmulatorSettings
     cell: CellSettings = field(default_factory=CellSettings)
     policy: PolicySettings = field(default_factory=PolicySettings)
@@ -119,12 +123,13 @@ def _load(path: Path, raw: str) -> Manifest:
         raise where.at("timing").error(
             "missing required key 'state_timeout_ms': a real device needs the state watchdog "
             "(the arm stops when its state samples stop)")
+    emulator = _read(EmulatorSettings, doc, "emulator", where)
+    driver_settings = _driver_settings(driver_name, driver, emulator, where)
     policy = _policy(_read(PolicySettings, doc, "policy", where), where.at("policy"))
     _check_link_loss_first(core, policy, where)
     return Manifest(
         name=run_name(doc, path, where), path=path, core=core, sections=sections,
-        driver_name=driver_name, driver_settings=driver,
-        emulator=_read(EmulatorSettings, doc, "emulator", where),
+        driver_name=driver_name, driver_settings=driver_settings, emulator=emulator,
         cell=_read(CellSettings, doc, "cell", where),
         policy=policy, journal=_read(JournalSettings, doc, "journal", where),
         task=dict(table(doc, "task", where)),
@@ -132,6 +137,19 @@ def _load(path: Path, raw: str) -> Manifest:
         safety=safety_table(doc, where, core.control_period_ns),
         trial=_trial(doc, where),
     )
+
+
+def _driver_settings(name: str, table: dict[str, Any], emulator: EmulatorSettings,
+                     where: Where) -> Any:
+    """The driver's own settings type, from the registry; with ``[emulator] launch`` the run
+    fills in the device's address from the emulator, so the table may leave it out."""
+    try:
+        return registry.settings_for(name, table, f"{where.file}: driver",
+                                     address_filled_in=emulator.launch)
+    except registry.UnknownDriver as error:
+        raise where.at("driver").at("name").error(str(error)) from None
+    except SettingsError as error:
+        raise ManifestError(str(error)) from None
 
 
 def _check_link_loss_first(core: CoreConfig, policy: PolicySettings, where: Where) -> None:

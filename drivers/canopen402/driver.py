@@ -20,11 +20,11 @@ they would wait for a frame that the loop itself has to dispatch.
 from __future__ import annotations
 
 import asyncio
-import functools
+import dataclasses
 import math
 import time
 from collections.abc import Callable, Mapping
-from typing import Any, TypeVar
+from typing import ClassVar, TypeVar
 
 import can
 from canopen.sdo import SdoAbortedError, SdoCommunicationError
@@ -35,6 +35,7 @@ from drivers.base import (
     Command,
     CommandKind,
     ControlConfig,
+    Driver,
     DriverError,
     DriverInitError,
     DriverIOError,
@@ -50,6 +51,7 @@ from drivers.canopen402.drive_state import FAULTY, check_running, current_state,
 from drivers.canopen402.gripper import Gripper
 from drivers.canopen402.health import HealthMonitor
 from drivers.canopen402.link import Link, build_link
+from drivers.canopen402.process_data import joint_readings, start_bus_cycle
 from drivers.canopen402.settings import CiA402Settings
 from drivers.canopen402.tables import Command as Controlword
 from drivers.canopen402.tables import DriveState, Index
@@ -62,7 +64,14 @@ T = TypeVar("T")
 FIRST_CYCLE_TIMEOUT_S = 1.0
 
 
-class CiA402Driver:
+class CiA402Driver(Driver):
+    settings_type = CiA402Settings
+    capabilities = frozenset({CommandKind.POSITION, CommandKind.HOLD, CommandKind.STOP})
+    """Cyclic synchronous position only: no VELOCITY (CSV) and no IMPEDANCE (CST with a
+    compliance law warden does not run), so compliant targets go out as positions."""
+    address_keys: ClassVar[Mapping[str, str]] = {"interface": "udp_multicast",
+                                                 "channel": "239.0.0.1"}
+    default_name = "canopen402"
     device_watchdog = staticmethod(settings_module.device_watchdog)
     """What stops the arm when warden's commands stop, per manifest table (None: off)."""
     device_identity = staticmethod(settings_module.device_identity)
@@ -94,12 +103,9 @@ class CiA402Driver:
         self._watchdog = DriveWatchdog(settings)
 
     @classmethod
-    def from_mapping(cls, table: Mapping[str, Any], where: str = "canopen402",
-                     name: str | None = None) -> CiA402Driver:
-        """Build from a manifest table; ``name`` is used when the table does not set one."""
-        if name is not None and "name" not in table:
-            table = {**table, "name": name}
-        return cls(CiA402Settings.from_mapping(table, where))
+    def from_settings(cls, settings: CiA402Settings, name: str | None = None) -> CiA402Driver:
+        """The drives' errors name them by ``settings.name``: ``name`` replaces it."""
+        return cls(settings if name is None else dataclasses.replace(settings, name=name))
 
     @property
     def cycle(self) -> BusCycle | None:
@@ -153,25 +159,10 @@ class CiA402Driver:
 
     def _start_cycle(self, control: ControlConfig) -> None:
         link = self._require_link()
-        nodes = link.nodes
         self._targets = tuple(node.rpdo[1][Index.TARGET_POSITION] for node in link.joints)
         if link.gripper is not None:
             self._gripper = Gripper(link.gripper, self.settings.gripper_scale())
-        tpdos = [(node.id, node.tpdo[n]) for node in nodes for n in list(node.tpdo)]
-        tpdos = [(node_id, pdo) for node_id, pdo in tpdos if pdo.enabled and pdo.cob_id]
-        self._cycle = BusCycle(
-            self._require_link().network, [node.rpdo[1] for node in nodes],
-            [(node_id, int(pdo.cob_id or 0)) for node_id, pdo in tpdos],
-            control.period_ns * 1e-9,
-        )
-        for node_id, pdo in tpdos:
-            pdo.add_callback(functools.partial(self._on_tpdo, node_id, int(pdo.cob_id or 0)))
-        self._cycle.start()
-
-    def _on_tpdo(self, node_id: int, cob_id: int, _pdo: object) -> None:
-        self._health.on_tpdo(node_id)
-        if self._cycle is not None:
-            self._cycle.on_tpdo(node_id, cob_id)
+        self._cycle = start_bus_cycle(link, control.period_ns * 1e-9, self._health.on_tpdo)
 
     async def activate(self) -> None:
         self._check()
@@ -307,24 +298,19 @@ class CiA402Driver:
                                 f"{error}") from error
 
     def _sample(self) -> StateSample:
-        q, qd, effort = [], [], []
-        for node, scale, rated in zip(self._require_link().joints, self._scales,
-                                      self._rated_torque, strict=True):
-            values = node.tpdo_values
-            q.append(scale.to_rad(values[Index.POSITION_ACTUAL]))
-            qd.append(scale.velocity_to_rad(values[Index.VELOCITY_ACTUAL]))
-            effort.append(scale.torque_to_nm(values[Index.TORQUE_ACTUAL], rated))
+        q, qd, effort = joint_readings(self._require_link().joints, self._scales,
+                                       self._rated_torque)
         self._seq += 1
         opening = self._gripper.opening() if self._gripper is not None else None
         return StateSample(seq=self._seq, t_mono_ns=time.monotonic_ns(), source=self.name,
-                           q=tuple(q), qd=tuple(qd), effort=tuple(effort), gripper=opening)
+                           q=q, qd=qd, effort=effort, gripper=opening)
 
     def _refuse(self, kind: CommandKind, reason: ReasonCode) -> Applied:
         return Applied(kind=kind, t_mono_ns=time.monotonic_ns(), accepted=False, reason=reason)
 
     # -- checks --------------------------------------------------------------------------------
 
-    async def inspect(self) -> tuple[Finding, ...]:
+    async def inspect(self) -> tuple[Finding, ...] | None:
         """Each drive's objects against the settings and limits (reads only; ``warden check``,
         see :mod:`drivers.canopen402.inspection`)."""
         self._check()

@@ -16,7 +16,7 @@ from drivers.canopen402.units import (
     GripperScale,
     JointScale,
 )
-from drivers.settings import configured, settings_from_mapping
+from drivers.settings import settings_from_mapping
 
 COUNTS_PER_REV_RANGE = (1, 2**31)
 GEAR_RATIO_RANGE = (0.001, 10_000.0)
@@ -234,30 +234,26 @@ def _check_node_ids(node_ids: tuple[int, ...]) -> None:
         raise ValueError("node ids must be unique")
 
 
-def device_identity(table: Mapping[str, Any]) -> str | None:
-    """The CAN bus ``table`` addresses: interface and channel (and, on ``udp_multicast``, the
+def device_identity(settings: CiA402Settings) -> str | None:
+    """The CAN bus ``settings`` address: interface and channel (and, on ``udp_multicast``, the
     port); None for python-can's ``virtual`` bus, which no other process can reach."""
-    interface, channel = table.get("interface"), table.get("channel")
-    if not isinstance(interface, str) or not isinstance(channel, str) or interface == "virtual":
+    if settings.interface == "virtual":
         return None
-    port = configured(CiA402Settings, table, "udp_port")
-    where = f" port {port}" if interface == "udp_multicast" else ""
-    return f"CAN bus {interface} {channel}{where}"
+    where = f" port {settings.udp_port}" if settings.interface == "udp_multicast" else ""
+    return f"CAN bus {settings.interface} {settings.channel}{where}"
 
 
-def device_watchdog(table: Mapping[str, Any]) -> str | None:
-    """What stops the arm when warden's commands stop, as ``table`` configures it; None: off."""
-    timeout_ms = configured(CiA402Settings, table, "watchdog_ms")
-    if not isinstance(timeout_ms, int) or timeout_ms <= 0:
+def device_watchdog(settings: CiA402Settings) -> str | None:
+    """What stops the arm when warden's commands stop, as ``settings`` configure it; None: off."""
+    if settings.watchdog_ms <= 0:
         return None
-    return (f"every drive's heartbeat consumer: no heartbeat from warden for {timeout_ms} ms and "
-            "the joints quick-stop (0x6007)")
+    return (f"every drive's heartbeat consumer: no heartbeat from warden for "
+            f"{settings.watchdog_ms} ms and the joints quick-stop (0x6007)")
 
 
-def device_watchdog_ms(table: Mapping[str, Any], control_period_ms: float) -> float | None:
+def device_watchdog_ms(settings: CiA402Settings, control_period_ms: float) -> float | None:
     """How long after warden's last heartbeat :func:`device_watchdog` stops the joints, in ms;
     None: off."""
-    timeout_ms = configured(CiA402Settings, table, "watchdog_ms")
-    if not isinstance(timeout_ms, int) or timeout_ms <= 0:
+    if settings.watchdog_ms <= 0:
         return None
-    return float(timeout_ms)
+    return float(settings.watchdog_ms)

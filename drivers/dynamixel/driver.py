@@ -33,7 +33,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Mapping
-from typing import Any, TypeVar
+from typing import ClassVar, TypeVar
 
 import msgspec
 import structlog
@@ -44,6 +44,7 @@ from drivers.base import (
     Command,
     CommandKind,
     ControlConfig,
+    Driver,
     DriverError,
     DriverInitError,
     NotConnected,
@@ -57,13 +58,18 @@ from drivers.dynamixel.settings import GRIPPER_MAX_OPENING_M, DynamixelSettings
 from drivers.dynamixel.tables import POSITION_MODE_TICKS
 from drivers.dynamixel.units import GripperCalibration, JointCalibration
 from drivers.readiness import Finding
-from drivers.settings import settings_from_mapping
 
 T = TypeVar("T")
 log = structlog.get_logger(__name__)
 
 
-class DynamixelDriver:
+class DynamixelDriver(Driver):
+    settings_type = DynamixelSettings
+    capabilities = frozenset({CommandKind.POSITION, CommandKind.HOLD, CommandKind.STOP})
+    """Position mode only: no VELOCITY (Operating Mode 1) and no IMPEDANCE (the servos have
+    no joint-space compliance), so compliant targets go out as positions."""
+    address_keys: ClassVar[Mapping[str, str]] = {"port": "/dev/null"}
+    default_name = "dynamixel"
     device_watchdog = staticmethod(settings_module.device_watchdog)
     """What stops the arm when warden's commands stop, per manifest table (None: off)."""
     device_identity = staticmethod(settings_module.device_identity)
@@ -90,13 +96,6 @@ class DynamixelDriver:
         self._thread: DeviceThread | None = None
         self._bus: DynamixelBus | None = None
         self._seq = 0
-
-    @classmethod
-    def from_mapping(cls, table: Mapping[str, Any], where: str | None = None,
-                     name: str = "dynamixel") -> DynamixelDriver:
-        """Build from a manifest table; unknown or ill-typed keys raise SettingsError by name."""
-        place = where or f"drivers.{name}"
-        return cls(settings_from_mapping(DynamixelSettings, table, place), name)
 
     @property
     def bus(self) -> DynamixelBus | None:
@@ -170,7 +169,7 @@ class DynamixelDriver:
             if self._watchdog_units:
                 await self._run(self._bus.clear_watchdogs)
 
-    async def inspect(self) -> tuple[Finding, ...]:
+    async def inspect(self) -> tuple[Finding, ...] | None:
         """The control table against the settings and limits (reads only; after configure)."""
         bus = self._connected_bus()
         if self._control is None:

@@ -4,9 +4,7 @@ from __future__ import annotations
 
 import math
 import os
-from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
 
 from drivers.dynamixel.tables import (
     BAUD_RATES,
@@ -15,7 +13,6 @@ from drivers.dynamixel.tables import (
     GOAL_CURRENT_MAX_UNITS,
     POSITION_MODE_TICKS,
 )
-from drivers.settings import configured
 
 SIX_SERVO_ARM_IDS = (1, 2, 3, 4, 5, 6)
 GRIPPER_MAX_OPENING_M = 0.085
@@ -173,28 +170,23 @@ class DynamixelSettings:
                              f"({self.gripper_open_ticks}); open and closed need distinct ticks")
 
 
-def device_identity(table: Mapping[str, Any]) -> str | None:
-    """The serial bus ``table`` addresses: its port with symlinks resolved, so
+def device_identity(settings: DynamixelSettings) -> str:
+    """The serial bus ``settings`` address: its port with symlinks resolved, so
     ``/dev/serial/by-id/...`` and the ``/dev/ttyUSB0`` it points at are one bus."""
-    port = table.get("port")
-    if not isinstance(port, str) or not port:
+    return f"Dynamixel bus {os.path.realpath(settings.port)}"
+
+
+def device_watchdog(settings: DynamixelSettings) -> str | None:
+    """What stops the arm when warden's commands stop, as ``settings`` configure it; None: off."""
+    if settings.watchdog_periods <= 0:
         return None
-    return f"Dynamixel bus {os.path.realpath(port)}"
+    return (f"every servo's Bus Watchdog: no instruction packet for {settings.watchdog_periods} "
+            "control periods and it stops")
 
 
-def device_watchdog(table: Mapping[str, Any]) -> str | None:
-    """What stops the arm when warden's commands stop, as ``table`` configures it; None: off."""
-    periods = configured(DynamixelSettings, table, "watchdog_periods")
-    if not isinstance(periods, int) or periods <= 0:
-        return None
-    return (f"every servo's Bus Watchdog: no instruction packet for {periods} control periods "
-            "and it stops")
-
-
-def device_watchdog_ms(table: Mapping[str, Any], control_period_ms: float) -> float | None:
+def device_watchdog_ms(settings: DynamixelSettings, control_period_ms: float) -> float | None:
     """How long after warden's last command :func:`device_watchdog` stops the arm, in ms;
     None: off."""
-    periods = configured(DynamixelSettings, table, "watchdog_periods")
-    if not isinstance(periods, int) or periods <= 0:
+    if settings.watchdog_periods <= 0:
         return None
-    return periods * control_period_ms
+    return settings.watchdog_periods * control_period_ms

@@ -10,7 +10,6 @@ from __future__ import annotations
 import contextlib
 import threading
 import time
-from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -21,6 +20,7 @@ from drivers.base import (
     CommandKind,
     ControlConfig,
     DeviceFault,
+    Driver,
     DriverInitError,
     NotConnected,
     StateSample,
@@ -38,20 +38,27 @@ class SimFaults:
     reject_writes: bool = False
 
 
-def _in_process_plant(table: Mapping[str, Any]) -> str:
-    return "none needed: the simulated plant runs in warden's process and stops with it"
+class SimDriver(Driver):
+    """The in-process plant. Its ``[driver]`` table takes no keys (``NoSettings``); the plant
+    comes from the world that steps it, so it is built by the world, not from settings."""
 
-
-def _stops_with_warden(table: Mapping[str, Any], control_period_ms: float) -> float:
-    return 0.0
-
-
-class SimDriver:
     capabilities = frozenset({CommandKind.POSITION, CommandKind.VELOCITY, CommandKind.HOLD,
                               CommandKind.STOP, CommandKind.IMPEDANCE})
-    device_watchdog = staticmethod(_in_process_plant)
-    """What stops the arm when warden's commands stop (simulation: warden itself)."""
-    device_watchdog_ms = staticmethod(_stops_with_warden)
+    default_name = "sim"
+
+    @classmethod
+    def from_settings(cls, settings: Any, name: str | None = None) -> SimDriver:
+        raise DriverInitError(name or cls.default_name, "the simulated driver is built by its "
+                              "world, around the plant the world steps")
+
+    @staticmethod
+    def device_watchdog(settings: Any) -> str:
+        """Simulation: warden itself."""
+        return "none needed: the simulated plant runs in warden's process and stops with it"
+
+    @staticmethod
+    def device_watchdog_ms(settings: Any, control_period_ms: float) -> float:
+        return 0.0
 
     def __init__(
         self, plant: SimulatedPlant, name: str = "sim", lock: threading.Lock | None = None,

@@ -31,7 +31,7 @@ import asyncio
 import math
 import time
 from collections.abc import Callable, Mapping
-from typing import Any, TypeVar
+from typing import ClassVar, TypeVar
 
 from assurance.reasons import ReasonCode
 from drivers.base import (
@@ -40,6 +40,7 @@ from drivers.base import (
     CommandKind,
     ControlConfig,
     DeviceFault,
+    Driver,
     DriverError,
     DriverInitError,
     DriverIOError,
@@ -49,8 +50,7 @@ from drivers.base import (
 )
 from drivers.device_thread import DeviceThread
 from drivers.readiness import Finding
-from drivers.settings import SettingsError
-from drivers.ur_rtde import inspection, tables
+from drivers.ur_rtde import inspection, setpoints, tables
 from drivers.ur_rtde import settings as settings_module
 from drivers.ur_rtde.link import Link, LinkDown, LinkStalled, Mode, Snapshot
 from drivers.ur_rtde.probe import ControllerUnreachable, probe_controller
@@ -61,9 +61,16 @@ CLOSE_TIMEOUT_S = 10.0
 """aclose waits this long: ur_rtde's disconnect can sit out its own 2.5 s read deadline."""
 
 
-class URRTDEDriver:
+class URRTDEDriver(Driver):
     """One UR arm. ``settings`` come from the manifest; ``name`` labels errors and traces."""
 
+    settings_type = URSettings
+    capabilities = frozenset({CommandKind.POSITION, CommandKind.VELOCITY, CommandKind.HOLD,
+                              CommandKind.STOP})
+    """No IMPEDANCE: servoJ and speedJ only (the controller's force mode is not joint-space
+    impedance), so compliant targets go out as positions."""
+    address_keys: ClassVar[Mapping[str, str]] = {"host": "127.0.0.1"}
+    default_name = "ur_rtde"
     device_watchdog = staticmethod(settings_module.device_watchdog)
     """What stops the arm when warden's commands stop, per manifest table (None: off)."""
     device_identity = staticmethod(settings_module.device_identity)
@@ -87,17 +94,6 @@ class URRTDEDriver:
         self._stopping: asyncio.Future[None] | None = None
         """A stop under way on the device thread: the loop's ticks go on meanwhile."""
         self._last: StateSample | None = None
-
-    @classmethod
-    def from_mapping(cls, table: Mapping[str, Any], where: str, name: str = "ur_rtde"
-                     ) -> URRTDEDriver:
-        """Build from a manifest table; bad settings raise DriverInitError naming the host."""
-        try:
-            return cls(URSettings.from_mapping(table, where), name)
-        except SettingsError as error:
-            host = table.get("host", "<no host>")
-            raise DriverInitError(name, f"bad settings for the UR arm at {host}: {error}"
-                                  ) from error
 
     @property
     def controller_time_s(self) -> float | None:
@@ -183,25 +179,29 @@ class URRTDEDriver:
         if command.kind is not CommandKind.STOP:
             self._stopped = False
         if command.kind is CommandKind.POSITION:
-            if not _well_formed(command.q):
+            if not setpoints.well_formed(command.q):
                 return await self._refused_and_kicked(command.kind)
             if self._watchdog_hz is not None and not link.watchdog.armed:
                 await self._arm_watchdog(link, self._watchdog_hz)
-            q = self._clip_position(command.q)
+            q = setpoints.clip_position(self._control, command.q)
             dt = max(self._period_s(), tables.CONTROLLER_CYCLE_S)
             return await self._applied(command.kind, lambda: link.servo_j(q, dt), q=q,
                                        timeout_s=self._setpoint_timeout(link, Mode.SERVO))
         if command.kind is CommandKind.VELOCITY:
-            if not _well_formed(command.qd):
+            if not setpoints.well_formed(command.qd):
                 return await self._refused_and_kicked(command.kind)
             if self._watchdog_hz is not None and not link.watchdog.armed:
                 await self._arm_watchdog(link, self._watchdog_hz)
-            qd = self._clip_velocity(command.qd)
+            qd = setpoints.clip_velocity(self._control, command.qd)
             return await self._applied(command.kind, lambda: link.speed_j(qd), qd=qd,
                                        timeout_s=self._setpoint_timeout(link, Mode.SPEED))
         if command.kind is CommandKind.HOLD:
             return await self.hold()
-        return await self._stop()
+        if command.kind is CommandKind.STOP:
+            return await self._stop()
+        # Not one of ``capabilities`` (IMPEDANCE): the lifecycle never sends it; this one
+        # came around it, and used to become a stop.
+        return await self._refused_and_kicked(command.kind, ReasonCode.CONTROLLER_MODE_MISMATCH)
 
     async def hold(self) -> Applied:
         """Servo to the measured position while streaming; stopJ when not streaming."""
@@ -225,7 +225,7 @@ class URRTDEDriver:
         await self._run(link.end_streaming, timeout_s=self.settings.stop_timeout_s)
         await self._run(link.disarm_watchdog, timeout_s=self.settings.stop_timeout_s)
 
-    async def inspect(self) -> tuple[Finding, ...]:
+    async def inspect(self) -> tuple[Finding, ...] | None:
         """The controller's status words and speed factors against what a run needs (reads)."""
         status = await self._run(inspection.read_status, self._link_or_raise())
         return inspection.findings(self.settings, self._version, status, self._watchdog_hz)
@@ -284,11 +284,12 @@ class URRTDEDriver:
                               f"{self.settings.host} did not confirm setWatchdog("
                               f"{frequency_hz:g} Hz)", ReasonCode.CONTROLLER_REJECT)
 
-    async def _refused_and_kicked(self, kind: CommandKind) -> Applied:
+    async def _refused_and_kicked(self, kind: CommandKind,
+                                  reason: ReasonCode = ReasonCode.NONFINITE) -> Applied:
         """A setpoint refused before it reached the library: nothing went out, so kick the
         watchdog (warden is alive; what to do about bad setpoints is the kernel's call)."""
         await self._run(self._link_or_raise().kick_watchdog)
-        return _refused(kind, ReasonCode.NONFINITE)
+        return setpoints.refused(kind, reason)
 
     async def _read_checked(self, streaming: bool) -> Snapshot:
         link = self._link_or_raise()
@@ -308,7 +309,7 @@ class URRTDEDriver:
             return Applied(kind=kind, t_mono_ns=time.monotonic_ns(), q=q, qd=qd)
         # The library says no without saying why: the status words do.
         await self._read_checked(streaming=True)
-        return _refused(kind, ReasonCode.CONTROLLER_REJECT)
+        return setpoints.refused(kind, ReasonCode.CONTROLLER_REJECT)
 
     async def _stop(self) -> Applied:
         """Stop once, without the loop waiting for it; a STOP repeated while the arm stays
@@ -391,22 +392,3 @@ class URRTDEDriver:
 
     def _period_s(self) -> float:
         return self._control.period_ns * 1e-9 if self._control else tables.CONTROLLER_CYCLE_S
-
-    def _clip_position(self, q: tuple[float, ...]) -> tuple[float, ...]:
-        if self._control is None:
-            return tuple(q)
-        low, high = self._control.q_lower, self._control.q_upper
-        return tuple(min(max(v, lo), hi) for v, lo, hi in zip(q, low, high, strict=True))
-
-    def _clip_velocity(self, qd: tuple[float, ...]) -> tuple[float, ...]:
-        limits = self._control.v_max if self._control else (tables.JOINT_VELOCITY_RANGE[1],) * 6
-        return tuple(min(max(v, -m), m) for v, m in zip(qd, limits, strict=True))
-
-
-def _well_formed(values: tuple[float, ...]) -> bool:
-    """Six finite numbers: anything else is refused before it reaches the library."""
-    return len(values) == tables.DOF and all(math.isfinite(v) for v in values)
-
-
-def _refused(kind: CommandKind, reason: ReasonCode) -> Applied:
-    return Applied(kind=kind, t_mono_ns=time.monotonic_ns(), accepted=False, reason=reason)

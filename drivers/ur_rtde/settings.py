@@ -8,7 +8,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from drivers.settings import configured, settings_from_mapping
+from drivers.settings import settings_from_mapping
 from drivers.ur_rtde import tables
 
 WATCHDOG_PERIODS_RANGE = (2, 10_000)
@@ -153,13 +153,10 @@ def _gripper_problems(s: URSettings) -> list[str]:
     return problems
 
 
-def device_identity(table: Mapping[str, Any]) -> str | None:
-    """The controller ``table`` addresses, the same string for every table that names it (an
+def device_identity(settings: URSettings) -> str:
+    """The controller ``settings`` address, the same string for every table that names it (an
     IP address in its canonical form; a host name lower-cased, not resolved)."""
-    host = table.get("host")
-    if not isinstance(host, str) or not host.strip():
-        return None
-    host = host.strip()
+    host = settings.host.strip()
     try:
         host = str(ipaddress.ip_address(host))
     except ValueError:
@@ -167,19 +164,17 @@ def device_identity(table: Mapping[str, Any]) -> str | None:
     return f"UR controller {host}"
 
 
-def device_watchdog(table: Mapping[str, Any]) -> str | None:
-    """What stops the arm when warden's commands stop, as ``table`` configures it; None: off."""
-    periods = configured(URSettings, table, "watchdog_periods")
-    if not isinstance(periods, int) or periods <= 0:
+def device_watchdog(settings: URSettings) -> str | None:
+    """What stops the arm when warden's commands stop, as ``settings`` configure it; None: off."""
+    if settings.watchdog_periods <= 0:
         return None
-    return (f"the controller's RTDE watchdog: no setpoint for {periods} control periods and the "
-            "control script stops")
+    return (f"the controller's RTDE watchdog: no setpoint for {settings.watchdog_periods} "
+            "control periods and the control script stops")
 
 
-def device_watchdog_ms(table: Mapping[str, Any], control_period_ms: float) -> float | None:
+def device_watchdog_ms(settings: URSettings, control_period_ms: float) -> float | None:
     """How long after warden's last command :func:`device_watchdog` stops the arm, in ms;
     None: off."""
-    periods = configured(URSettings, table, "watchdog_periods")
-    if not isinstance(periods, int) or periods <= 0:
+    if settings.watchdog_periods <= 0:
         return None
-    return periods * control_period_ms
+    return settings.watchdog_periods * control_period_ms

@@ -13,7 +13,7 @@ In order, each step one or more rows of the readiness table:
 3. watch: read the device once per control period for ``seconds``: samples arrive without a
    fault, every joint is inside the manifest's limits, the arm stays where it is;
 4. inspect: the driver's own comparison of the device's modes, limits and calibration with the
-   manifest (:class:`drivers.readiness.Inspectable`), reads only;
+   manifest (``Driver.inspect``), reads only;
 5. deactivate, close.
 
 The driver's ``write`` and ``hold`` are never called: a hold is a setpoint to a streaming
@@ -33,7 +33,7 @@ from itertools import pairwise
 from pathlib import Path
 
 from drivers.base import ControlConfig, DeviceFault, Driver, DriverError, StateSample
-from drivers.readiness import Finding, Inspectable, Verdict, judged, not_exercised, span
+from drivers.readiness import Finding, Verdict, judged, not_exercised, span
 from kernel import signing
 from kernel.app.compose import world_for
 from kernel.app.device import World
@@ -224,13 +224,14 @@ def _rest_row(samples: Sequence[StateSample]) -> Finding:
 
 async def _inspected(driver: Driver) -> tuple[Finding, ...]:
     name, expected = "device configuration", "modes, limits and calibration as the manifest says"
-    if not isinstance(driver, Inspectable):
-        return (not_exercised(name, expected,
-                              f"the driver {driver.name!r} offers no inspection"),)
     try:
-        return await driver.inspect()
+        findings = await driver.inspect()
     except DriverError as error:
         return (judged(name, expected, "could not be read", [str(error)]),)
+    if findings is None:
+        return (not_exercised(name, expected,
+                              f"the driver {driver.name!r} offers no inspection"),)
+    return findings
 
 
 def _not_exercised(manifest: Manifest) -> list[Finding]:

@@ -73,8 +73,8 @@ def world_for(manifest: Manifest) -> World:
 def effective(manifest: Manifest, world: World) -> tuple[CoreConfig, dict[str, Any]]:
     """The core's configuration for this world, and the sections a journal must carry to
     rebuild exactly it: the device's impedance capability, the model file's path and digest."""
-    capabilities = getattr(world.driver(), "capabilities", frozenset())
-    impedance = manifest.core.motion.impedance and CommandKind.IMPEDANCE in capabilities
+    impedance = manifest.core.motion.impedance and CommandKind.IMPEDANCE in world.driver(
+        ).capabilities
     motion = dataclasses.replace(manifest.core.motion, impedance=impedance)
     config = dataclasses.replace(manifest.core, initial_session=None, motion=motion)
     sections = {**manifest.sections, "motion": {**manifest.sections.get("motion", {}),

@@ -9,12 +9,10 @@ emulator process with the plant behind it) are stand-ins in ``stubs/`` reached t
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
 from typing import Any, Protocol
 
 from drivers import registry
-from drivers.base import Driver
-from drivers.settings import SettingsError
+from drivers.base import Driver, DriverInitError
 from kernel.manifest import Manifest, ManifestError
 
 
@@ -39,20 +37,22 @@ class World(Protocol):
     def close(self) -> None: ...
 
 
-def driver_from_manifest(manifest: Manifest, table: Mapping[str, Any]) -> Driver:
-    """The manifest's driver, built through the registry; bad settings name the key.
+def driver_from_manifest(manifest: Manifest, settings: Any = None) -> Driver:
+    """The manifest's driver, built through the registry from its decoded settings (or from
+    ``settings``, the same type with the address an emulator gave filled in).
 
     Raises:
-        ManifestError: an unknown driver, or settings that do not fit it.
+        ManifestError: an unknown driver, or one the registry cannot build from settings.
     """
     where = f"{manifest.path}: driver"
     try:
-        return registry.load(manifest.driver_name).from_mapping(
-            table, where, name=manifest.driver_name)
+        driver = registry.load(manifest.driver_name)
+        return driver.from_settings(
+            manifest.driver_settings if settings is None else settings, manifest.driver_name)
     except registry.UnknownDriver as error:
         raise ManifestError(f"{where}.name: {error}") from None
-    except (SettingsError, ValueError) as error:
-        raise ManifestError(str(error)) from None
+    except DriverInitError as error:
+        raise ManifestError(f"{where}: {error}") from None
 
 
 class DeviceWorld:
@@ -61,7 +61,7 @@ class DeviceWorld:
     has_ground_truth = False
 
     def __init__(self, manifest: Manifest) -> None:
-        self._driver = driver_from_manifest(manifest, manifest.driver_settings)
+        self._driver = driver_from_manifest(manifest)
 
     def driver(self) -> Driver:
         return self._driver

@@ -105,7 +105,7 @@ def check_device_settings(manifest: Manifest) -> None:
         ManifestError: naming the ``[driver]`` key.
     """
     if manifest.driver_name != "sim" and not manifest.emulator.launch:
-        driver_from_manifest(manifest, manifest.driver_settings)
+        driver_from_manifest(manifest)
 
 
 def device_watchdog(manifest: Manifest) -> str:
@@ -116,10 +116,10 @@ def device_watchdog(manifest: Manifest) -> str:
     """
     where = f"{manifest.path}: driver"
     try:
-        declared = getattr(registry.load(manifest.driver_name), "device_watchdog", None)
+        driver = registry.load(manifest.driver_name)
     except registry.UnknownDriver as error:
         raise ManifestError(f"{where}.name: {error}") from None
-    watchdog = declared(manifest.driver_settings) if declared is not None else None
+    watchdog = driver.device_watchdog(manifest.driver_settings)
     if watchdog is None:
         raise ManifestError(f"{where}: a trial needs the device-side watchdog (it stops the arm "
                             f"when warden dies), and this {manifest.driver_name} table switches "

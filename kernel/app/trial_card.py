@@ -60,8 +60,8 @@ def _monitor_bounds(manifest: Manifest) -> str:
 
 def _device_stop(manifest: Manifest, period_ms: float) -> str:
     text = device_watchdog(manifest)
-    declared = getattr(registry.load(manifest.driver_name), "device_watchdog_ms", None)
-    bound = declared(manifest.driver_settings, period_ms) if declared is not None else None
+    driver = registry.load(manifest.driver_name)
+    bound = driver.device_watchdog_ms(manifest.driver_settings, period_ms)
     if bound is None:
         return f"{text} (its bound: not declared by the driver)"
     if bound == 0:

@@ -43,7 +43,6 @@ from drivers.base import DriverInitError
 from drivers.canopen402.link import open_bus
 from drivers.canopen402.settings import CiA402Settings
 from drivers.canopen402.tables import NMT_COB_ID, Index, NmtCommand
-from drivers.settings import SettingsError
 from kernel.safety.canopen_view import BusView, Notice, NoticeKind
 from kernel.safety.checks import Sample
 from kernel.safety.settings import SafetySettings
@@ -91,14 +90,7 @@ class CiA402Watch:
                 "bus when it starts them and the monitor cannot know it; start the emulator "
                 "yourself (python -m stubs.cia402_drive), name its bus in [driver] (interface, "
                 "channel, udp_port) and set launch = false")
-        for key in ("interface", "channel"):
-            if key not in manifest.driver_settings:
-                raise DeviceUnreachable(f"{where}.{key}: not set, so the monitor cannot know "
-                                        "which bus the drives are on")
-        try:
-            settings = CiA402Settings.from_mapping(manifest.driver_settings, where)
-        except (SettingsError, ValueError) as error:
-            raise DeviceUnreachable(str(error)) from error
+        settings: CiA402Settings = manifest.driver_settings  # checked when it was loaded
         if not settings.watchdog_ms:
             raise DeviceUnreachable(
                 f"{where}.watchdog_ms: 0, so warden's driver leaves each drive's abort "

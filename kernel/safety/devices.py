@@ -53,7 +53,7 @@ class HeartbeatOnly:
 
 
 def _dynamixel(manifest: MonitorView, settings: SafetySettings) -> DeviceWatch:
-    port = manifest.driver_settings.get("port", "the manifest's serial port")
+    port = manifest.driver_settings.port
     return HeartbeatOnly(
         f"dynamixel bus on {port} (single master: warden; no second connection)",
         "the servos' Bus Watchdog (register 98, armed by the driver) stops each servo when "

@@ -53,13 +53,12 @@ class URWatch:
         """Raises:
             DeviceUnreachable: the manifest does not name the controller's address.
         """
-        host = manifest.driver_settings.get("host")
-        if not isinstance(host, str) or not host:
+        if manifest.emulator.launch:  # the address is the emulator's, chosen when it starts
             raise DeviceUnreachable(
                 f"{manifest.path}: driver.host: not set, so the monitor cannot know where the "
                 "controller is (with [emulator] launch = true the address is chosen at start: "
                 "start the emulator yourself and name it here, with launch = false)")
-        return cls(host, settings.device_timeout_ms / 1e3)
+        return cls(manifest.driver_settings.host, settings.device_timeout_ms / 1e3)
 
     def connect(self) -> None:
         try:

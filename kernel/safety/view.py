@@ -18,6 +18,8 @@ from typing import Any
 
 import msgspec
 
+from drivers import registry
+from drivers.settings import SettingsError
 from kernel.manifest_tables import (
     ROBOT_KEYS,
     EmulatorSettings,
@@ -51,9 +53,9 @@ class MonitorView(msgspec.Struct, frozen=True):
     safety: SafetySettings | None
     """``[safety]``; None: no such table (the monitor refuses to start)."""
     driver_name: str
-    driver_settings: Mapping[str, Any]
-    """``[driver]`` without ``name``, as written: each watch reads it through the driver's own
-    settings type (the device's address, the bus, the drives)."""
+    driver_settings: Any
+    """``[driver]`` without ``name``, decoded into the named driver's own settings type (the
+    device's address, the bus, the drives)."""
     emulator: EmulatorSettings
 
 
@@ -85,12 +87,26 @@ def _view(path: Path, raw: str, digest: str) -> MonitorView:
     period_ms = control_period_ms(mapping(doc, "timing", where, required=False),
                                   where.at("timing"))
     driver_name, driver = driver_table(doc, where)
+    emulator = _emulator(doc, where)
     return MonitorView(
         name=run_name(doc, path, where), path=path, digest=digest,
         limits=robot_limits_table(robot, where.at("robot")),
         safety=safety_table(doc, where, round(period_ms * 1e6)),  # as assurance.clock rounds
-        driver_name=driver_name, driver_settings=driver,
-        emulator=_emulator(doc, where))
+        driver_name=driver_name, driver_settings=_driver(driver_name, driver, emulator, where),
+        emulator=emulator)
+
+
+def _driver(name: str, driver: Mapping[str, Any], emulator: EmulatorSettings,
+            where: Where) -> Any:
+    """``[driver]`` decoded into the settings type the named driver declares, as warden's own
+    loader decodes it (one definition per key: the driver's)."""
+    try:
+        return registry.settings_for(name, driver, f"{where.file}: driver",
+                                     address_filled_in=emulator.launch)
+    except registry.UnknownDriver as error:
+        raise where.at("driver").at("name").error(str(error)) from None
+    except SettingsError as error:
+        raise ViewError(str(error)) from None
 
 
 def _emulator(doc: Mapping[str, Any], where: Where) -> EmulatorSettings:

@@ -28,7 +28,7 @@ import hashlib
 import json
 import os
 import re
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterator
 from dataclasses import dataclass
 from enum import StrEnum
 from pathlib import Path
@@ -67,7 +67,7 @@ class Addressed(Protocol):
     @property
     def driver_name(self) -> str: ...
     @property
-    def driver_settings(self) -> Mapping[str, Any]: ...
+    def driver_settings(self) -> Any: ...
     @property
     def emulator(self) -> _Emulator: ...
 
@@ -108,10 +108,10 @@ def device_of(manifest: Addressed) -> str | None:
     if manifest.emulator.launch or manifest.driver_name == "sim":
         return None
     try:
-        declared = getattr(registry.load(manifest.driver_name), "device_identity", None)
+        driver = registry.load(manifest.driver_name)
     except registry.UnknownDriver:
-        return None  # refused by name when the world is built
-    return declared(manifest.driver_settings) if declared is not None else None
+        return None  # refused by name when the manifest is loaded
+    return driver.device_identity(manifest.driver_settings)
 
 
 @contextlib.contextmanager

@@ -9,6 +9,7 @@ test-only control port (see :mod:`stubs.plant.world_port`), never over the robot
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -43,62 +44,55 @@ def _ur_gripper_flags(manifest: Manifest) -> tuple[str, ...]:
     its signal is fixed there (0-10 V over the stroke), so a manifest must agree with it."""
     from stubs.ur_controller.io_board import GripperWiring
 
-    table = manifest.driver_settings
-    if table.get("gripper_output") is None:
+    settings = manifest.driver_settings
+    if settings.gripper_output is None:
         return ()
     emulated = GripperWiring()
-    for key, value in (("gripper_feedback_closed", 0.0),
-                       ("gripper_feedback_open", emulated.full_scale_v),
-                       ("gripper_max_opening_m", emulated.max_opening_m)):
-        if key in table and table[key] != value:
+    for key, given, value in (
+            ("gripper_feedback_closed", settings.gripper_feedback_closed, 0.0),
+            ("gripper_feedback_open", settings.gripper_feedback_open, emulated.full_scale_v),
+            ("gripper_max_opening_m", settings.gripper_max_opening_m, emulated.max_opening_m)):
+        if given != value:
             raise ManifestError(f"{manifest.path}: driver.{key}: the emulated controller's "
                                 f"gripper reads {value} here; set it so, or drop the key")
-    feedback = str(table.get("gripper_feedback", "standard_analog_input0"))
-    return ("--gripper-output", str(table["gripper_output"]),
+    feedback = settings.gripper_feedback
+    return ("--gripper-output", str(settings.gripper_output),
             "--gripper-feedback-input", feedback.removeprefix("standard_analog_input"))
 
 
 def _dynamixel(manifest: Manifest, plant: str) -> Launch:
-    table = manifest.driver_settings
-    ids = table.get("ids", (1, 2, 3, 4, 5, 6))
-    baud = table.get("baud", 1_000_000)
-    args = ("--ids", ",".join(map(str, ids)), "--baud", str(baud), "--plant", plant,
-            *_flags(table, {"gripper_id": "--gripper-id", "gripper_open_ticks":
-                            "--gripper-open-ticks", "gripper_closed_ticks":
-                            "--gripper-closed-ticks"}))
+    settings = manifest.driver_settings
+    args = ("--ids", ",".join(map(str, settings.ids)), "--baud", str(settings.baud),
+            "--plant", plant, *_flags({"--gripper-id": settings.gripper_id}))
+    if settings.gripper_id is not None:
+        args += ("--gripper-open-ticks", str(settings.gripper_open_ticks),
+                 "--gripper-closed-ticks", str(settings.gripper_closed_ticks))
     return Launch("stubs.dynamixel_bus", args, lambda ready: {"port": ready["port"]},
                   lambda _: "127.0.0.1")
 
 
-def _flags(table: Mapping[str, Any], flags: Mapping[str, str]) -> tuple[str, ...]:
+def _flags(flags: Mapping[str, Any]) -> tuple[str, ...]:
     """Emulator flags for the driver settings the manifest sets (the device's build: what a
     real bus or cell would have wired)."""
-    return tuple(part for key, flag in flags.items() if table.get(key) is not None
-                 for part in (flag, str(table[key])))
+    return tuple(part for flag, value in flags.items() if value is not None
+                 for part in (flag, str(value)))
 
 
 def _canopen(manifest: Manifest, plant: str) -> Launch:
     from stubs.cia402_drive.launch import unique_udp_bus
 
     group, port = unique_udp_bus()
-    table = manifest.driver_settings
-    nodes = table.get("node_ids", (1, 2, 3, 4, 5, 6))
-    counts = table.get("counts_per_rev", (2**23,) * len(nodes))
+    settings = manifest.driver_settings
+    nodes = settings.node_ids
     args = ("--channel", group, "--port", str(port), "--nodes", ",".join(map(str, nodes)),
-            "--counts-per-rev", str(int(counts[0])), "--plant", plant,
-            *_flags(table, {"gripper_node": "--gripper-node",
-                            "gripper_counts_per_m": "--gripper-counts-per-m"}))
+            "--counts-per-rev", str(int(settings.counts_per_rev[0])), "--plant", plant,
+            *_flags({"--gripper-node": settings.gripper_node}))
+    if settings.gripper_node is not None:
+        args += ("--gripper-counts-per-m", str(settings.gripper_counts_per_m))
     return Launch("stubs.cia402_drive", args,
                   lambda ready: {"interface": "udp_multicast", "channel": ready["channel"],
                                  "udp_port": ready["port"]}, lambda _: "127.0.0.1")
 
-
-ADDRESS_STAND_INS: dict[str, dict[str, Any]] = {
-    "ur_rtde": {"host": "127.0.0.1"},
-    "dynamixel": {"port": "/dev/null"},
-    "canopen402": {"interface": "udp_multicast", "channel": "239.0.0.1"},
-}
-"""What each launcher fills in from the emulator's READY line, to check the rest beforehand."""
 
 LAUNCHERS: dict[str, Callable[[Manifest, str], Launch]] = {
     "ur_rtde": _ur,
@@ -118,10 +112,8 @@ class EmulatorWorld:
         if launcher is None:
             raise ManifestError(f"{manifest.path}: driver.name: no emulator for "
                                 f"{manifest.driver_name!r} (known: {', '.join(LAUNCHERS)})")
-        # Settings first, with stand-ins for the emulator's address: a mistake is named by key
-        # before any process starts (the emulator would refuse some of them less clearly).
-        driver_from_manifest(manifest, {**ADDRESS_STAND_INS.get(manifest.driver_name, {}),
-                                        **manifest.driver_settings})
+        # The settings were checked when the manifest was loaded, with the driver's placeholders
+        # for the emulator's address: a mistake was named by key before any process starts.
         plant = str(manifest.emulator.plant)
         launch = launcher(manifest, plant)
         try:
@@ -132,9 +124,9 @@ class EmulatorWorld:
         ready = self.process.info
         port = ready.get("control_port", ready.get("fault_port"))
         self.control = (launch.control_host(ready), int(port))
-        table = {**manifest.driver_settings, **launch.settings(ready)}
+        settings = dataclasses.replace(manifest.driver_settings, **launch.settings(ready))
         try:
-            self._driver = driver_from_manifest(manifest, table)
+            self._driver = driver_from_manifest(manifest, settings)
         except ManifestError:
             self.process.stop()
             raise

@@ -33,10 +33,6 @@ CONTROL_HOST = "127.0.0.1"
 
 def sim_world(manifest: Manifest) -> SimWorld:
     """The ``sim`` world for a manifest (the ``warden.worlds`` entry point)."""
-    if manifest.driver_settings:
-        key = next(iter(manifest.driver_settings))
-        raise ManifestError(f"{manifest.path}: driver.{key}: unknown key (the sim driver "
-                            "takes no settings)")
     port = manifest.safety.sim_port if manifest.safety is not None else 0
     plant = MujocoPlant()
     period_ns = manifest.core.control_period_ns

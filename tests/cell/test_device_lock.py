@@ -49,8 +49,14 @@ def _cycle_under_way(log: Path) -> bool:
     return False
 
 
+JOINTS: dict[str, dict[str, Any]] = {
+    "canopen402": {"node_ids": [1, 2], "counts_per_rev": [4096, 4096]}}
+"""What a table needs besides its address to be settings at all."""
+
+
 def _identity(driver: str, table: dict[str, Any]) -> str | None:
-    return registry.load(driver).device_identity(table)
+    settings = registry.settings_for(driver, {**JOINTS.get(driver, {}), **table}, "driver")
+    return registry.load(driver).device_identity(settings)
 
 
 # -- identities: one string per device, whatever the manifest calls it ----------------------------

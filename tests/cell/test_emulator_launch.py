@@ -16,7 +16,8 @@ from tests.cell.harness import manifest
 
 def _with_driver(name: str, **settings: Any) -> Manifest:
     loaded = manifest(name)
-    return dataclasses.replace(loaded, driver_settings={**loaded.driver_settings, **settings})
+    return dataclasses.replace(
+        loaded, driver_settings=dataclasses.replace(loaded.driver_settings, **settings))
 
 
 def _args(loaded: Manifest) -> tuple[str, ...]:
@@ -42,7 +43,7 @@ def test_the_ur_gripper_wiring_reaches_the_emulator() -> None:
 
 def test_no_gripper_no_flags() -> None:
     loaded = manifest("sim-ur5e-rtde.toml")
-    settings = {k: v for k, v in loaded.driver_settings.items() if not k.startswith("gripper")}
+    settings = dataclasses.replace(loaded.driver_settings, gripper_output=None)
     assert not any(a.startswith("--gripper") for a in _args(
         dataclasses.replace(loaded, driver_settings=settings)))
 

@@ -46,7 +46,7 @@ def test_the_example_is_a_real_device_manifest_with_everything_a_trial_needs() -
     assert manifest.operator.socket and manifest.safety is not None
     assert manifest.safety.max_wrist_force_n is not None
     assert manifest.trial is not None
-    assert manifest.driver_settings["watchdog_periods"] > 0  # the controller's watchdog on
+    assert manifest.driver_settings.watchdog_periods > 0  # the controller's watchdog on
     assert manifest.sections["timing"]["state_timeout_ms"] > 0  # warden's state watchdog
     assert manifest.sections["robot"]["model_sha256"] == digest(BUILTIN["ur5e"].path)
 

@@ -10,7 +10,15 @@ from collections.abc import Callable
 import pytest
 
 from assurance.reasons import ReasonCode
-from drivers.base import Applied, Command, ControlConfig, DeviceFault, Driver, StateSample
+from drivers.base import (
+    Applied,
+    Command,
+    CommandKind,
+    ControlConfig,
+    DeviceFault,
+    Driver,
+    StateSample,
+)
 from drivers.sim.driver import SimDriver, SimFaults
 from drivers.sim.plant import PlantReading, SimulatedPlant
 from drivers.testing import CHECKS, ConformanceError, DriverConformance, Harness, check_driver
@@ -95,8 +103,26 @@ class _EstopAsProtectiveStop(SimDriver):
         return await super().read()
 
 
+class _VelocityUndeclared(SimDriver):
+    """Leaves VELOCITY out of its declaration, yet obeys it."""
+
+    capabilities = SimDriver.capabilities - {CommandKind.VELOCITY}
+
+
+class _ImpedanceIgnored(SimDriver):
+    """Declares IMPEDANCE and reports it applied, but holds instead."""
+
+    async def write(self, command: Command) -> Applied:
+        if command.kind is CommandKind.IMPEDANCE:
+            await self.hold()
+            return Applied(kind=command.kind, t_mono_ns=0, q=command.q)
+        return await super().write(command)
+
+
 @pytest.mark.parametrize(("driver_type", "message"), [
     (_StuckDriver, r"^active write moves: joint 0 is 0\.05 from its target"),
+    (_VelocityUndeclared, r"^capabilities: undeclared velocity: the driver accepted it"),
+    (_ImpedanceIgnored, r"^capabilities: declared impedance: joint 0 moved 0 of about 0\.05"),
     (_EstopAsProtectiveStop, r"^fault 'estop': reason CONTROLLER_FAULT .* expected E_STOP$"),
 ])
 async def test_check_driver_names_the_broken_rule(driver_type: Callable[..., Driver],

@@ -229,7 +229,7 @@ def test_the_watchdog_a_trial_is_told_of_is_the_one_configured(table: dict[str, 
                                                               on: bool) -> None:
     """``device_watchdog`` is what `warden trial` reports as the device's stop, and None (no
     trial) when 0 switches the Bus Watchdog off (issue 15, item 14: reported on at 0)."""
-    said = device_watchdog({"port": "/dev/null", **table})
+    said = device_watchdog(DynamixelSettings(port="/dev/null", **table))
     assert (said is not None) == on
     if on:
         assert f"for {table.get('watchdog_periods', 10)} control periods" in str(said)

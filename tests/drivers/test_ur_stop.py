@@ -133,3 +133,22 @@ async def test_the_watchdog_is_armed_before_the_first_tick_not_by_it(
         q = (await arm.read()).q
         assert (await arm.write(Command(kind=CommandKind.POSITION, q=q))).accepted
         assert _query(emulator, "status")["watchdogs"]["armed"] == armed  # nothing re-armed
+
+
+async def test_impedance_is_refused_not_turned_into_a_stop(emulator: EmulatedController) -> None:
+    """The UR driver declares no IMPEDANCE (servoJ and speedJ only). The lifecycle refuses it
+    with CONTROLLER_MODE_MISMATCH, and the driver called around the lifecycle refuses it too:
+    it used to fall through to stopJ and report a STOP applied."""
+    emulator.clear()
+    driver = URRTDEDriver(URSettings(host=emulator.host))
+    assert CommandKind.IMPEDANCE not in driver.capabilities
+    async with active(driver, CONTROL) as arm:
+        q = (await arm.read()).q
+        impedance = Command(kind=CommandKind.IMPEDANCE, q=q, stiffness=(100.0,) * 6,
+                            damping=(10.0,) * 6)
+        refused = await arm.write(impedance)
+        assert not refused.accepted and refused.reason is ReasonCode.CONTROLLER_MODE_MISMATCH
+        applied = await driver.write(impedance)
+        assert (applied.kind, applied.accepted, applied.reason) == (
+            CommandKind.IMPEDANCE, False, ReasonCode.CONTROLLER_MODE_MISMATCH)
+        assert arm.state is DriverState.ACTIVE

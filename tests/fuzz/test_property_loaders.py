@@ -45,13 +45,11 @@ from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
 from drivers.base import DriverInitError
-from drivers.settings import settings_from_mapping
 from kernel.cli import main
 from kernel.manifest import Manifest, ManifestError
 from kernel.shell.link_settings import PolicySettings
 from tests.fuzz.mutate import byte_mutated, mutated, to_json, to_toml
 from tests.fuzz.settings_use import (
-    ADDRESS_STAND_INS,
     DRIVER_SETTINGS,
     use_driver_settings,
     use_policy,
@@ -248,9 +246,8 @@ def test_mutated_driver_and_policy_settings_are_refused_before_anything_starts(
     loaded = _check_preflight(path)
     if loaded is not None:
         use_policy(loaded.policy, loaded.core.control_period_ns)
-        table = {**ADDRESS_STAND_INS[driver], **loaded.driver_settings}
-        use_driver_settings(settings_from_mapping(DRIVER_SETTINGS[driver], table, "driver"),
-                            loaded.core.control_period_ns / 1e9)
+        assert isinstance(loaded.driver_settings, DRIVER_SETTINGS[driver])
+        use_driver_settings(loaded.driver_settings, loaded.core.control_period_ns / 1e9)
 
 
 def test_the_shipped_files_pass_unmutated(workdir: Path, journal: list[Any]) -> None:

@@ -51,15 +51,17 @@ def test_a_canopen_cell_whose_emulator_warden_starts_has_no_bus(tmp_path: Path,
 
 
 @pytest.mark.parametrize(("driver", "expected"), [
-    ({"watchdog_ms": 0}, "cell.toml: driver.watchdog_ms: 0, so warden's driver leaves each "
-                         "drive's abort connection option code (0x6007) as the drive has it"),
-    ({"node_ids": [1, 2, 2]}, "cell.toml: driver: node ids must be unique"),
+    ({"watchdog_ms": 0}, "cannot watch the device: {}/cell.toml: driver.watchdog_ms: 0, so "
+     "warden's driver leaves each drive's abort connection option code (0x6007) as the drive "
+     "has it"),
+    # Settings that fit no drive are the manifest's own mistake, refused when it is loaded.
+    ({"node_ids": [1, 2, 2]}, "warden safety: {}/cell.toml: driver: node ids must be unique"),
 ])
 def test_canopen_driver_settings_the_monitor_cannot_watch_by_are_refused(
         tmp_path: Path, capsys, driver: dict, expected: str) -> None:  # type: ignore
     bus = {"interface": "udp_multicast", "channel": "239.1.2.3", "udp_port": 41234}
     err = _refusal(capsys, str(canopen_manifest(tmp_path, bus, driver=driver)))
-    assert f"cannot watch the device: {tmp_path}/{expected}" in err
+    assert expected.format(tmp_path) in err
     assert not (tmp_path / "status.sock").exists()
 
 

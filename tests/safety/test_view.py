@@ -27,7 +27,7 @@ def test_the_view_reads_what_warden_reads(path: Path) -> None:
         core.gripper_index, tuple(np.flatnonzero(core.arm_mask).tolist()))
     assert (view.name, view.digest, view.safety) == (manifest.name, manifest.digest,
                                                      manifest.safety)
-    assert (view.driver_name, dict(view.driver_settings), view.emulator) == (
+    assert (view.driver_name, view.driver_settings, view.emulator) == (
         manifest.driver_name, manifest.driver_settings, manifest.emulator)
 
 
