@@ -8,7 +8,10 @@ operational, the bus cycle (RPDOs + SYNC) at the control period, CSP confirmed. 
 target := actual, then up to OPERATION ENABLED. write: targets into the RPDOs, then RPDOs +
 SYNC; the first setpoint arms every drive's watchdog on warden's heartbeat, which every write
 then feeds (:mod:`drivers.canopen402.watchdog`). read: the latest TPDOs, converted to SI units.
-deactivate: targets := actual (unless nothing was commanded since activation), disable.
+HOLD keeps the targets (the last setpoint, or the actual positions taken at activation); only
+after a quick stop, whose ramp left the drives short of or past them, are they re-taken from the
+actual positions: never a fresh reading otherwise (a glitched one is a jump a CSP drive follows
+at once). deactivate: the same hold, then disable.
 inspect (``warden check``): each drive's objects against the settings, reads only.
 Every step that concerns "every drive" includes the gripper drive, so its faults surface exactly
 as a joint's do; only the units and the HOLD/STOP rules differ.
@@ -214,7 +217,7 @@ class CiA402Driver:
         self._check()
         self._commanded = True
         self._watchdog.beat()
-        q = self._hold_targets()
+        q = self._held_targets()
         self._keep_gripper()
         if self._active and self._stop_requested:  # leave QUICK STOP ACTIVE (transition 16)
             await self._blocking("re-enable after quick stop", self._for_each, walk_to,
@@ -227,7 +230,7 @@ class CiA402Driver:
     async def deactivate(self) -> None:
         self._active = False
         if self._commanded:  # else the targets set at activation hold: rewriting is motion
-            self._hold_targets()
+            self._held_targets()
             self._keep_gripper()
         if self._watchdog.armed:  # beating meanwhile (_blocking): no drive stops on the way
             await self._blocking("disarm the drives' watchdog", self._for_each, watchdog.disarm)
@@ -284,6 +287,14 @@ class CiA402Driver:
         self._tick()
         return Applied(kind=CommandKind.STOP, t_mono_ns=time.monotonic_ns(),
                        q=self._sample().q)
+
+    def _held_targets(self) -> tuple[float, ...]:
+        """The targets a hold keeps, in radians: as they are, unless a quick stop moved the
+        drives away from them (then where the stop left them, :meth:`_hold_targets`)."""
+        if self._stop_requested:
+            return self._hold_targets()
+        return tuple(scale.to_rad(target.raw)
+                     for scale, target in zip(self._scales, self._targets, strict=True))
 
     def _hold_targets(self) -> tuple[float, ...]:
         """Set every joint's target to its actual position; returns it in radians."""

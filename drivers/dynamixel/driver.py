@@ -21,6 +21,8 @@ thread-safe and its calls block (and spin) while they wait for a reply.
 - read: one (fast) sync read of present current, velocity and position; the alert bit in any
   status packet turns into a DeviceFault that names the hardware error bits.
 - write: one sync write of goal positions, clipped to the joint limits and the one-turn range.
+  HOLD and STOP write the joints' last goals again, never a reading (a glitched one would
+  be a goal the arm moves to).
 
 With ``gripper_id`` one more servo on the bus is the gripper: bring-up finds and configures it
 with the joints; a POSITION command's ``gripper`` opening (m, clipped to [0, 0.085]) goes out in
@@ -150,7 +152,8 @@ class DynamixelDriver:
         if command.kind is CommandKind.POSITION:
             return await self._write_position(command)
         if command.kind in (CommandKind.HOLD, CommandKind.STOP):
-            # In position mode "stop" and "hold" are the same: goal := where the servo is now.
+            # In position mode "stop" and "hold" are the same: the last goal, kept (a servo
+            # trails its goal by at most a period's motion; see DynamixelBus.hold_at_goals).
             # Its gripper opening is ignored on purpose: a hold must never open the gripper.
             applied = await self.hold()
             return msgspec.structs.replace(applied, kind=command.kind)
@@ -159,9 +162,9 @@ class DynamixelDriver:
 
     async def hold(self) -> Applied:
         self._written = True
-        raw = await self._run(self._connected_bus().hold_here)
+        goals = await self._run(self._connected_bus().hold_at_goals)
         return Applied(kind=CommandKind.HOLD, t_mono_ns=time.monotonic_ns(),
-                       q=self.calibration.q_from_ticks(raw.position))
+                       q=self.calibration.q_from_ticks(goals))
 
     async def deactivate(self) -> None:
         if self._bus is not None:
