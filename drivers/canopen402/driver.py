@@ -6,8 +6,9 @@ its heartbeat, set its reaction to a lost connection, refuse (or, if allowed, re
 FAULT. configure: cycle time, limits, quick-stop option and PDO mapping over SDO, NMT
 operational, the bus cycle (RPDOs + SYNC) at the control period, CSP confirmed. activate:
 target := actual, then up to OPERATION ENABLED. write: targets into the RPDOs, then RPDOs +
-SYNC; the first setpoint arms every drive's watchdog on warden's heartbeat, which every write
-then feeds (:mod:`drivers.canopen402.watchdog`). read: the latest TPDOs, converted to SI units.
+SYNC; right before the loop's first tick (or at the first setpoint) every drive's watchdog on
+warden's heartbeat is armed, which every write then feeds (:mod:`drivers.canopen402.watchdog`).
+read: the latest TPDOs, converted to SI units.
 HOLD keeps the targets (the last setpoint, or the actual positions taken at activation); only
 after a quick stop, whose ramp left the drives short of or past them, are they re-taken from the
 actual positions: never a fresh reading otherwise (a glitched one is a jump a CSP drive follows
@@ -197,13 +198,18 @@ class CiA402Driver:
         await self._await_cycle("the TPDOs of the last SYNC", timeout_s)
         return await self.read()
 
+    async def before_first_tick(self) -> None:
+        """Arm the drives' watchdog now, right before the loop's first tick: armed by the
+        first setpoint, its SDO round trips (one per drive) stalled that tick 0.2-0.9 s on a
+        loaded host, past the state watchdog, a CONTROLLER_STOP before any motion."""
+        self._check()
+        await self._arm_watchdog()
+
     async def write(self, command: Command) -> Applied:
         self._check()
         self._commanded = True
-        if command.kind is CommandKind.POSITION and self._watchdog.to_arm:
-            await self._blocking("arm the drives' watchdog", self._for_each, watchdog.arm,
-                                 self._watchdog.entry)  # the first setpoint: see watchdog.py
-            self._watchdog.armed = True
+        if command.kind is CommandKind.POSITION:
+            await self._arm_watchdog()  # a loop without before_first_tick: see watchdog.py
         self._watchdog.beat()
         if command.kind is CommandKind.POSITION:
             return self._write_position(command)
@@ -259,6 +265,12 @@ class CiA402Driver:
                 self._thread.close()
 
     # -- the cyclic path -----------------------------------------------------------------------
+
+    async def _arm_watchdog(self) -> None:
+        if self._watchdog.to_arm:
+            await self._blocking("arm the drives' watchdog", self._for_each, watchdog.arm,
+                                 self._watchdog.entry)
+            self._watchdog.armed = True
 
     def _write_position(self, command: Command) -> Applied:
         control = self._require_control()
