@@ -120,7 +120,7 @@ def _braking_bound(glitch: Glitch, journal: list[dict[str, Any]], period_s: floa
     may go: its lag behind that command, or what braking the command takes (from the
     commands' velocity and acceleration, the reaction time, the limits), plus overshoot."""
     assert glitch.injected_ns is not None and glitch.q0 is not None
-    last = last_command(journal, glitch.injected_ns * 1e-6)
+    last = last_command(journal, glitch.injected_ns * 1e-6, period_s)
     assert last is not None, f"{glitch.label}: no command before the glitch"
     lag = np.abs(glitch.q0 - last.q)
     brake = np.array([abs(v) * 3 * period_s + braking_distance(
