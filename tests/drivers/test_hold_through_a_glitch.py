@@ -46,8 +46,10 @@ def _limits(period_s: float) -> ControlConfig:
 
 
 async def _held_through_a_glitch(driver: Driver, control: ControlConfig, truth: Truth,
-                                 glitch: Callable[[], object]) -> float:
-    """Command the arm where it is, glitch joint 0's reading, HOLD every period; the
+                                 glitch: Callable[[], object], command: Command = HOLD
+                                 ) -> float:
+    """Command the arm where it is, glitch joint 0's reading, then ``command`` every period
+    (a STOP once before the glitch too: the stop the glitch finds is a repeated one); the
     farthest the true joint 0 went from the setpoint meanwhile."""
     period_s = control.period_ns * 1e-9
     async with active(driver, control) as arm:
@@ -56,12 +58,14 @@ async def _held_through_a_glitch(driver: Driver, control: ControlConfig, truth: 
             await arm.read()
             assert (await arm.write(here)).accepted
             await asyncio.sleep(period_s)
+        if command.kind is CommandKind.STOP:
+            assert (await arm.write(command)).accepted
         glitch()
         farthest, reported = 0.0, 0.0
         end = time.monotonic() + HOLDING_S
         while time.monotonic() < end:
             reported = max(reported, abs((await arm.read()).q[0] - here.q[0]))
-            assert (await arm.write(HOLD)).accepted
+            assert (await arm.write(command)).accepted
             farthest = max(farthest, abs(truth()[0] - here.q[0]))
             await asyncio.sleep(period_s)
         assert reported > OFFSET_RAD / 2  # the driver did read the glitch
@@ -87,6 +91,18 @@ async def test_the_dynamixel_arm_holds_its_last_goal_through_a_reading_glitch() 
             lambda: bus.inject("reading_glitch", joint=0, offset=OFFSET_RAD,
                                duration_ms=GLITCH_MS))
     assert moved < TOLERANCE_RAD, f"the arm moved {moved:.3f} rad while held"
+
+
+async def test_a_stopped_dynamixel_arm_stays_stopped_through_a_reading_glitch() -> None:
+    """In position mode STOP sets the goal where the servo is: once. Repeated, as every tick
+    of E_STOP sends it, it re-read the position each time and chased the glitch."""
+    with BusEmulator("--ids", "1,2,3,4,5,6") as bus:
+        driver = DynamixelDriver(DynamixelSettings(port=bus.port, **WIDE_TIMING))
+        moved = await _held_through_a_glitch(
+            driver, _limits(0.008), lambda: inject(bus.fault_address, "ground_truth")["q"],
+            lambda: bus.inject("reading_glitch", joint=0, offset=OFFSET_RAD,
+                               duration_ms=GLITCH_MS), Command(kind=CommandKind.STOP))
+    assert moved < TOLERANCE_RAD, f"the arm moved {moved:.3f} rad while stopped"
 
 
 async def test_the_cia402_arm_holds_its_last_targets_through_a_reading_glitch() -> None:
