@@ -103,7 +103,7 @@ def _check(glitches: list[Glitch], cell: Any, directory: Path,
                          and d["t"] == seen for d in decisions)
             assert caused, f"{glitch.label}: a glitched sample at {seen} ms went unnoticed"
         if caused:
-            hold = _braking_bound(glitch, journal, period_s, limits, jerk)
+            hold = _braking_bound(glitch, seen, journal, period_s, limits, jerk)
         elif not in_hold or hold is None:
             hold = None
             continue  # never reached the core (the arm went on as commanded), or a hold
@@ -137,15 +137,20 @@ def _run_end(decisions: list[dict[str, Any]], directory: Path) -> str:
     return next((c["reason"] for c in cycles if not c["verified"]), "the run ended")
 
 
-def _braking_bound(glitch: Glitch, journal: list[dict[str, Any]], period_s: float,
-                   limits: Any, jerk: float) -> tuple[np.ndarray, np.ndarray]:
-    """Where the arm was last commanded before the glitch's onset, and how far from there it
-    may go: its lag behind that command, or what braking the command takes (from the
-    commands' velocity and acceleration, the reaction time, the limits), plus overshoot."""
+def _braking_bound(glitch: Glitch, seen_ms: float, journal: list[dict[str, Any]],
+                   period_s: float, limits: Any, jerk: float) -> tuple[np.ndarray, np.ndarray]:
+    """Where the arm was last commanded before the hold the glitch caused, and how far from
+    there it may go: its lag behind the command at the onset, or what braking the command
+    takes (from the commands' velocity and acceleration, the reaction time, the limits),
+    plus overshoot. Before the hold, not before the onset: on a loaded host the first
+    glitched sample can reach the core ticks after the injection, and the arm goes on as
+    commanded meanwhile (a policy's pre-contact rows moved a CiA 402 arm 0.02 rad so)."""
     assert glitch.injected_ns is not None and glitch.q0 is not None
-    last = last_command(journal, glitch.injected_ns * 1e-6, period_s)
-    assert last is not None, f"{glitch.label}: no command before the glitch"
-    lag = np.abs(glitch.q0 - last.q)
+    at_onset = last_command(journal, glitch.injected_ns * 1e-6, period_s)
+    # The tick that read the glitched sample commands the hold: the command before it.
+    last = last_command(journal, seen_ms - 1e-3, period_s)
+    assert last is not None and at_onset is not None, f"{glitch.label}: no command before it"
+    lag = np.abs(glitch.q0 - at_onset.q)
     brake = np.array([abs(v) * 3 * period_s + braking_distance(
         v, a, float(limits.acceleration[j]), jerk)
         for j, (v, a) in enumerate(zip(last.qd, last.qdd, strict=True))])
