@@ -9,17 +9,18 @@ over the drivers so that every phase gets each of them once and every driver all
 Asserted for every glitch: a glitched sample that reached the core while it was not already
 holding raised STATE_IMPLAUSIBLE at that very sample; and whenever the glitch reached a core
 that held (the glitch caused the hold, or came during one), the plant's true joints never went
-further from where they were last commanded before the onset than they already were (the
-servo's lag) or than braking takes: the distance computed here, from the journaled commands'
-velocity and acceleration and the manifest's acceleration and jerk limits (step by step, not
-with warden's code), plus the reaction time (the glitch reaches the core within a period, its
-hold goes out the next) and the servo's overshoot. Measured from the last command rather than
-from the true joint at the onset, the bound also holds when a loaded machine runs the
-emulator's physics slower than the wall clock and the arm trails its commands. The
-command's velocity and acceleration are per control period: warden's motion advances one
-period a tick, however late the tick; taken over the journal's wall time on a loaded host they
-were a fraction of the path's, the cause of this campaign's failures at load 4-9. Before the
-plausibility check the 200 ms glitch in pre-contact drove the arm 0.5 rad.
+further from where they were last commanded before the hold than they were from their
+command at the onset (the servo's lag) or than braking takes: the distance computed here,
+from the journaled commands' velocity and acceleration and the manifest's acceleration and
+jerk limits (step by step, not with warden's code), plus the reaction time (the hold goes
+out the tick after the one that read the glitch) and the servo's overshoot. Measured from
+the last command rather than from the true joint at the onset, the bound also holds when
+a loaded machine runs the emulator's physics slower than the wall clock and the arm trails
+its commands. The command's velocity and acceleration are per control period: warden's
+motion advances one period a tick, however late the tick; taken over the journal's wall time
+on a loaded host they were a fraction of the path's, the cause of this campaign's failures
+at load 4-9. Before the plausibility check the 200 ms glitch in pre-contact drove the arm
+0.5 rad.
 
 On the shared 2-core test host a vendor cell is sometimes kept from a phase by the load (a
 stalled loop or the device's watchdog stops it, or the cycle's time runs out in holds): the
