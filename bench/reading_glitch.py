@@ -105,7 +105,8 @@ def child(manifest_name: str) -> None:
         journal = [json.loads(line) for line in next(Path(journals).glob("*/journal.jsonl"))
                    .open()]
     injected = glitch.injected_ns
-    last = None if injected is None else glitches.last_command(journal, injected * 1e-6)
+    last = None if injected is None else glitches.last_command(
+        journal, injected * 1e-6, cell.core.control_period_ns * 1e-9)
     from_command = [] if last is None else [float(x) for x in glitches.motion_from(glitch,
                                                                                     last.q)]
     transitions = [f"{t['from']}->{t['to']} ({t['trigger']}, "

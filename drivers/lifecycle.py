@@ -8,6 +8,7 @@ any exception into FAULT with the error's reason code, and records the duration 
 
 from __future__ import annotations
 
+import contextlib
 import time
 from collections import deque
 from collections.abc import Awaitable, Callable
@@ -91,9 +92,14 @@ class ManagedDriver:
         self.state = DriverState.ACTIVE
 
     async def before_first_tick(self) -> None:
-        """The driver's ``before_first_tick`` hook (drivers/base.py), in ACTIVE only."""
+        """The driver's ``before_first_tick`` hook (drivers/base.py), in ACTIVE only.
+
+        A failure is a fault like a failed read or write (recorded here, seen by the core in
+        the next sample: CONTROLLER_STOP), not an exception: the run must start its loop and
+        stop the arm through the core, as it would have had the first tick failed."""
         if self.state is DriverState.ACTIVE:
-            await self._call("before_first_tick", self.driver.before_first_tick())
+            with contextlib.suppress(DriverError):  # _call recorded it: self.fault
+                await self._call("before_first_tick", self.driver.before_first_tick())
 
     async def deactivate(self) -> None:
         self._require(DriverState.ACTIVE, "deactivate")

@@ -6,9 +6,13 @@ its heartbeat, set its reaction to a lost connection, refuse (or, if allowed, re
 FAULT. configure: cycle time, limits, quick-stop option and PDO mapping over SDO, NMT
 operational, the bus cycle (RPDOs + SYNC) at the control period, CSP confirmed. activate:
 target := actual, then up to OPERATION ENABLED. write: targets into the RPDOs, then RPDOs +
-SYNC; the first setpoint arms every drive's watchdog on warden's heartbeat, which every write
-then feeds (:mod:`drivers.canopen402.watchdog`). read: the latest TPDOs, converted to SI units.
-deactivate: targets := actual (unless nothing was commanded since activation), disable.
+SYNC; right before the loop's first tick (or at the first setpoint) every drive's watchdog on
+warden's heartbeat is armed, which every write then feeds (:mod:`drivers.canopen402.watchdog`).
+read: the latest TPDOs, converted to SI units.
+HOLD keeps the targets (the last setpoint, or the actual positions taken at activation); only
+after a quick stop, whose ramp left the drives short of or past them, are they re-taken from the
+actual positions: never a fresh reading otherwise (a glitched one is a jump a CSP drive follows
+at once). deactivate: the same hold, then disable.
 inspect (``warden check``): each drive's objects against the settings, reads only.
 Every step that concerns "every drive" includes the gripper drive, so its faults surface exactly
 as a joint's do; only the units and the HOLD/STOP rules differ.
@@ -185,13 +189,18 @@ class CiA402Driver(Driver):
         await self._await_cycle("the TPDOs of the last SYNC", timeout_s)
         return await self.read()
 
+    async def before_first_tick(self) -> None:
+        """Arm the drives' watchdog now, right before the loop's first tick: armed by the
+        first setpoint, its SDO round trips (one per drive) stalled that tick 0.2-0.9 s on a
+        loaded host, past the state watchdog, a CONTROLLER_STOP before any motion."""
+        self._check()
+        await self._arm_watchdog()
+
     async def write(self, command: Command) -> Applied:
         self._check()
         self._commanded = True
-        if command.kind is CommandKind.POSITION and self._watchdog.to_arm:
-            await self._blocking("arm the drives' watchdog", self._for_each, watchdog.arm,
-                                 self._watchdog.entry)  # the first setpoint: see watchdog.py
-            self._watchdog.armed = True
+        if command.kind is CommandKind.POSITION:
+            await self._arm_watchdog()  # a loop without before_first_tick: see watchdog.py
         self._watchdog.beat()
         if command.kind is CommandKind.POSITION:
             return self._write_position(command)
@@ -205,7 +214,7 @@ class CiA402Driver(Driver):
         self._check()
         self._commanded = True
         self._watchdog.beat()
-        q = self._hold_targets()
+        q = self._held_targets()
         self._keep_gripper()
         if self._active and self._stop_requested:  # leave QUICK STOP ACTIVE (transition 16)
             await self._blocking("re-enable after quick stop", self._for_each, walk_to,
@@ -218,7 +227,7 @@ class CiA402Driver(Driver):
     async def deactivate(self) -> None:
         self._active = False
         if self._commanded:  # else the targets set at activation hold: rewriting is motion
-            self._hold_targets()
+            self._held_targets()
             self._keep_gripper()
         if self._watchdog.armed:  # beating meanwhile (_blocking): no drive stops on the way
             await self._blocking("disarm the drives' watchdog", self._for_each, watchdog.disarm)
@@ -248,6 +257,12 @@ class CiA402Driver(Driver):
 
     # -- the cyclic path -----------------------------------------------------------------------
 
+    async def _arm_watchdog(self) -> None:
+        if self._watchdog.to_arm:
+            await self._blocking("arm the drives' watchdog", self._for_each, watchdog.arm,
+                                 self._watchdog.entry)
+            self._watchdog.armed = True
+
     def _write_position(self, command: Command) -> Applied:
         control = self._require_control()
         if self._stop_requested:
@@ -275,6 +290,14 @@ class CiA402Driver(Driver):
         self._tick()
         return Applied(kind=CommandKind.STOP, t_mono_ns=time.monotonic_ns(),
                        q=self._sample().q)
+
+    def _held_targets(self) -> tuple[float, ...]:
+        """The targets a hold keeps, in radians: as they are, unless a quick stop moved the
+        drives away from them (then where the stop left them, :meth:`_hold_targets`)."""
+        if self._stop_requested:
+            return self._hold_targets()
+        return tuple(scale.to_rad(target.raw)
+                     for scale, target in zip(self._scales, self._targets, strict=True))
 
     def _hold_targets(self) -> tuple[float, ...]:
         """Set every joint's target to its actual position; returns it in radians."""

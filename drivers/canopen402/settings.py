@@ -68,7 +68,7 @@ class CiA402Settings:
     watchdog_ms: int = 300
     """Each drive's consumer time for warden's heartbeat (0x1016): a drive that misses it this
     long reacts as 0x6007 says (the joints quick-stop and hold, the gripper keeps its grip).
-    Armed by the first setpoint after activation, removed on deactivate; 0 switches it off.
+    Armed right before the loop's first tick, removed on deactivate; 0 switches it off.
     300, not 100: on the shared test machine the control loop stalls 105-245 ms a few times a
     run, and a CSP drive holds the last setpoint meanwhile. See docs/operations.md,
     "Device-side watchdogs"."""

@@ -15,9 +15,11 @@ consumes it:
   they ramp down and hold, powered, in QUICK STOP ACTIVE (0x605A = 6 is the driver's quick stop
   option); NO ACTION for the gripper, which keeps squeezing a held part, as a STOP leaves it.
   At connect each drive's consumer entry is also cleared, in case a killed run left it armed.
-- The consumer entry (sub-index 1) is armed by the first position setpoint after activation:
-  armed at activation, the drives would stop while the kernel starts the policy server, about a
-  second before its first tick. A drive watches the heartbeat from the first one it hears.
+- The consumer entry (sub-index 1) is armed right before the loop's first tick (the driver's
+  ``before_first_tick``), or by the first position setpoint after activation for a caller
+  without that hook: armed at activation, the drives would stop while the kernel starts the
+  policy server, about a second before its first tick; armed inside the first tick, its SDO
+  round trips stalled it. A drive watches the heartbeat from the first one it hears.
 - It is disarmed (0) on deactivate, before the drives are disabled.
 
 The SDO steps run on the device thread; :class:`MasterHeartbeat` only sends frames;

@@ -73,6 +73,8 @@ class DynamixelBus(BusTransactions):
         self._watchdog_writer: GroupSyncWriteLike | None = None
         self.watchdog_units = 0
         """The Bus Watchdog value armed on every servo (0: not armed)."""
+        self.goals: tuple[int, ...] | None = None
+        """The joints' Goal Position last written (None with torque off): where a hold holds."""
         self._abandoned = False
 
     # ------------------------------------------------------------------ lifecycle
@@ -107,6 +109,7 @@ class DynamixelBus(BusTransactions):
         would push with all it has until its overload alert switches the torque off (part
         dropped, arm faulted). Goal Current is RAM: written after the mode, every connect.
         """
+        self.goals = None
         with self._link_errors():
             for dxl_id in self.settings.all_ids:
                 self._write_item(dxl_id, tables.TORQUE_ENABLE, 0)
@@ -121,14 +124,24 @@ class DynamixelBus(BusTransactions):
                                  self.settings.gripper_current_units)
 
     def hold_here(self) -> RawState:
-        """Make the present position every joint's goal; returns the state it read.
-
-        The gripper's goal stays as it is: a gripper holding a part sits wider than its goal
-        (it squeezes), and making "where it is" its goal would stop the squeeze and drop it.
-        """
+        """Make the present position every joint's goal (a stop); returns the state it read.
+        The gripper's goal stays as it is (see :meth:`hold_at_goals`)."""
         state = self.read_state()
         self.write_goals(state.position)
         return state
+
+    def hold_at_goals(self) -> tuple[int, ...]:
+        """Write every joint's last goal again (the present position only if none was
+        written since torque on); returns the goals held.
+
+        Not the present position once a goal is known: a glitched reading made the goal
+        would move the arm to it (0.5 rad in a takeover's holds, chasing the glitch).
+        The gripper's goal stays as it is: a gripper holding a part sits wider than its goal
+        (it squeezes), and making "where it is" its goal would stop the squeeze and drop it.
+        """
+        goals = self.goals if self.goals is not None else self.read_state().position
+        self.write_goals(goals)
+        return goals
 
     def enable_torque_holding(self) -> RawState:
         """Set every goal (gripper too) to the present position, then torque on: nothing jumps."""
@@ -210,6 +223,7 @@ class DynamixelBus(BusTransactions):
         if result != COMM_SUCCESS:
             raise DriverIOError(self.device, f"sync write of goal positions on "
                                 f"{self.settings.port} failed: {self._text(result)}")
+        self.goals = tuple(ticks)
 
     # ------------------------------------------------------------------ bus watchdog
 

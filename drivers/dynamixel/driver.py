@@ -21,6 +21,8 @@ thread-safe and its calls block (and spin) while they wait for a reply.
 - read: one (fast) sync read of present current, velocity and position; the alert bit in any
   status packet turns into a DeviceFault that names the hardware error bits.
 - write: one sync write of goal positions, clipped to the joint limits and the one-turn range.
+  HOLD writes the joints' last goals again, never a reading (a glitched one would be a goal
+  the arm moves to); STOP makes the present position the goal once, then holds it.
 
 With ``gripper_id`` one more servo on the bus is the gripper: bring-up finds and configures it
 with the joints; a POSITION command's ``gripper`` opening (m, clipped to [0, 0.085]) goes out in
@@ -93,6 +95,8 @@ class DynamixelDriver(Driver):
         self._control: ControlConfig | None = None
         self._written = False
         """A goal went out since activation (deactivate then holds where the arm is)."""
+        self._stopped = False
+        """A STOP made the present position the goal, and no setpoint went out since."""
         self._thread: DeviceThread | None = None
         self._bus: DynamixelBus | None = None
         self._seq = 0
@@ -139,7 +143,7 @@ class DynamixelDriver(Driver):
         if self._watchdog_units:
             await self._run(bus.clear_watchdogs)
         await self._run(bus.enable_torque_holding)
-        self._written = False
+        self._written = self._stopped = False
 
     async def read(self) -> StateSample:
         raw = await self._run(self._connected_bus().read_state)
@@ -148,8 +152,15 @@ class DynamixelDriver(Driver):
     async def write(self, command: Command) -> Applied:
         if command.kind is CommandKind.POSITION:
             return await self._write_position(command)
+        if command.kind is CommandKind.STOP and not self._stopped:
+            # A stop ends motion now: goal := where the servo is, read once (a far goal is
+            # not followed on); repeated, as every tick of E_STOP sends it, the goal stays
+            # (re-read each time, a glitched reading would be a goal the arm moves to).
+            self._written = self._stopped = True
+            raw = await self._run(self._connected_bus().hold_here)
+            return Applied(kind=CommandKind.STOP, t_mono_ns=time.monotonic_ns(),
+                           q=self.calibration.q_from_ticks(raw.position))
         if command.kind in (CommandKind.HOLD, CommandKind.STOP):
-            # In position mode "stop" and "hold" are the same: goal := where the servo is now.
             # Its gripper opening is ignored on purpose: a hold must never open the gripper.
             applied = await self.hold()
             return msgspec.structs.replace(applied, kind=command.kind)
@@ -158,9 +169,9 @@ class DynamixelDriver(Driver):
 
     async def hold(self) -> Applied:
         self._written = True
-        raw = await self._run(self._connected_bus().hold_here)
+        goals = await self._run(self._connected_bus().hold_at_goals)
         return Applied(kind=CommandKind.HOLD, t_mono_ns=time.monotonic_ns(),
-                       q=self.calibration.q_from_ticks(raw.position))
+                       q=self.calibration.q_from_ticks(goals))
 
     async def deactivate(self) -> None:
         if self._bus is not None:
@@ -208,7 +219,7 @@ class DynamixelDriver(Driver):
         bus = self._connected_bus()
         if self._watchdog_units and not bus.watchdog_units:  # the first setpoint arms it
             await self._run(bus.arm_watchdogs, self._watchdog_units)
-        self._written = True
+        self._written, self._stopped = True, False
         await self._run(bus.write_goals, ticks, self._gripper_tick(command))
         # ``q`` is what was sent before rounding to whole ticks (at most half a tick, 0.77 mrad).
         return Applied(kind=command.kind, t_mono_ns=time.monotonic_ns(), q=q)

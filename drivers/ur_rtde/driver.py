@@ -2,7 +2,8 @@
 
 Positions stream as servoJ at the control rate, velocities as speedJ; STOP is stopJ (once: STOP
 repeated while the arm stays stopped only kicks the watchdog), HOLD is
-servoJ to the measured position (stopJ while inactive). Every read takes one snapshot of the
+servoJ to the last position this driver commanded (the measured one only when there is none:
+after activation, a velocity or a stop; stopJ while inactive). Every read takes one snapshot of the
 receive interface and maps the controller's own words: safety bits (e-stop → E_STOP,
 protective/safeguard stop → CONTROLLER_FAULT), robot mode and runtime state while streaming
 (→ CONTROLLER_FAULT), a timestamp that stopped advancing (→ WATCHDOG) and a lost link
@@ -94,6 +95,10 @@ class URRTDEDriver(Driver):
         self._stopping: asyncio.Future[None] | None = None
         """A stop under way on the device thread: the loop's ticks go on meanwhile."""
         self._last: StateSample | None = None
+        self._commanded: tuple[float, ...] | None = None
+        """The position the arm was last servoed to since activation (setpoint or hold), where
+        a HOLD holds: a reading may be glitched, and servoing to it would move the arm there.
+        None after a velocity or a stop (the arm ended somewhere no setpoint said)."""
 
     @property
     def controller_time_s(self) -> float | None:
@@ -141,7 +146,7 @@ class URRTDEDriver(Driver):
         if not await self._run(link.program_running):
             await self._run(link.restart_script, timeout_s=self.settings.stop_timeout_s)
         await self._read_checked(streaming=True)
-        self._active, self._stopped = True, False
+        self._active, self._stopped, self._commanded = True, False, None
 
     async def before_first_tick(self) -> None:
         """Arm the controller's watchdog now, right before the loop's first tick, so that its
@@ -184,15 +189,14 @@ class URRTDEDriver(Driver):
             if self._watchdog_hz is not None and not link.watchdog.armed:
                 await self._arm_watchdog(link, self._watchdog_hz)
             q = setpoints.clip_position(self._control, command.q)
-            dt = max(self._period_s(), tables.CONTROLLER_CYCLE_S)
-            return await self._applied(command.kind, lambda: link.servo_j(q, dt), q=q,
-                                       timeout_s=self._setpoint_timeout(link, Mode.SERVO))
+            return await self._servo(command.kind, link, q)
         if command.kind is CommandKind.VELOCITY:
             if not setpoints.well_formed(command.qd):
                 return await self._refused_and_kicked(command.kind)
             if self._watchdog_hz is not None and not link.watchdog.armed:
                 await self._arm_watchdog(link, self._watchdog_hz)
             qd = setpoints.clip_velocity(self._control, command.qd)
+            self._commanded = None
             return await self._applied(command.kind, lambda: link.speed_j(qd), qd=qd,
                                        timeout_s=self._setpoint_timeout(link, Mode.SPEED))
         if command.kind is CommandKind.HOLD:
@@ -204,23 +208,37 @@ class URRTDEDriver(Driver):
         return await self._refused_and_kicked(command.kind, ReasonCode.CONTROLLER_MODE_MISMATCH)
 
     async def hold(self) -> Applied:
-        """Servo to the measured position while streaming; stopJ when not streaming."""
+        """Servo to the last commanded position while streaming (the measured one if none);
+        stopJ when not streaming.
+
+        Never to a fresh reading once a position was commanded: a glitched one (an encoder
+        or frame reporting a joint 0.5 rad off) held every tick of an operator's takeover
+        moved the arm 0.5 rad toward it, and chased the glitch for as long as it lasted."""
         await self._stop_finished()
         link = self._link_or_raise()
         self._stopped = False
-        q = (await self._read_checked(streaming=self._active)).q
+        measured = (await self._read_checked(streaming=self._active)).q  # and its status words
         if self._active:
-            dt = max(self._period_s(), tables.CONTROLLER_CYCLE_S)
-            return await self._applied(CommandKind.HOLD, lambda: link.servo_j(q, dt), q=q,
-                                       timeout_s=self._setpoint_timeout(link, Mode.SERVO))
+            q = self._commanded if self._commanded is not None else measured
+            return await self._servo(CommandKind.HOLD, link, q)
         await self._run(link.stop, timeout_s=self.settings.stop_timeout_s)
-        return Applied(kind=CommandKind.HOLD, t_mono_ns=time.monotonic_ns(), q=q)
+        return Applied(kind=CommandKind.HOLD, t_mono_ns=time.monotonic_ns(), q=measured)
+
+    async def _servo(self, kind: CommandKind, link: Link, q: tuple[float, ...]) -> Applied:
+        """servoJ to ``q``, remembered as where a hold holds once the controller took it."""
+        dt = max(self._period_s(), tables.CONTROLLER_CYCLE_S)
+        applied = await self._applied(kind, lambda: link.servo_j(q, dt), q=q,
+                                      timeout_s=self._setpoint_timeout(link, Mode.SERVO))
+        if applied.accepted:
+            self._commanded = q
+        return applied
 
     async def deactivate(self) -> None:
         """End servo or speed mode (the arm decelerates and stays powered), then remove the
         watchdog: that stops the control script; the next activation uploads it again."""
         await self._stop_finished()
         self._active = self._stopped = False
+        self._commanded = None
         link = self._link_or_raise()
         await self._run(link.end_streaming, timeout_s=self.settings.stop_timeout_s)
         await self._run(link.disarm_watchdog, timeout_s=self.settings.stop_timeout_s)
@@ -332,7 +350,7 @@ class URRTDEDriver(Driver):
             return Applied(kind=CommandKind.STOP, t_mono_ns=time.monotonic_ns(), q=q)
         if self._thread is None:
             raise NotConnected(self.name, f"not connected to the arm at {self.settings.host}")
-        self._stopped = False
+        self._stopped, self._commanded = False, None
         self._stopping = self._thread.submit(self.settings.stop_timeout_s, link.stop)
         return self._stop_applied()
 

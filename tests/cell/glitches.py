@@ -202,16 +202,24 @@ class Commanded:
     qdd: np.ndarray
 
 
-def last_command(journal: list[dict[str, Any]], t_ms: float) -> Commanded | None:
-    """The last position command journaled at or before ``t_ms`` and its rates."""
-    moves = [(e["t"], np.array(e["effect"]["q"])) for e in journal
+def last_command(journal: list[dict[str, Any]], t_ms: float, period_s: float
+                 ) -> Commanded | None:
+    """The last position command journaled at or before ``t_ms`` and its rates.
+
+    The rates are per control period, not per journaled wall time: each command is the
+    setpoint one period after the one before (warden's interpolator and planner advance one
+    period a tick, however late the tick), so a loaded machine spreads the same path over more
+    wall time without changing where braking it ends. Measured over the wall time between the
+    journal's ticks (3-4 ms apart at load 6 instead of 2 ms), a transport move's velocity
+    came out half and its acceleration a quarter of the path's, and the braking bound a
+    tenth of the braking that path takes (0.013 rad against 0.124 rad)."""
+    moves = [np.array(e["effect"]["q"]) for e in journal
              if e.get("kind") == "command" and e["t"] <= t_ms and e["effect"].get("q")]
     if len(moves) < 3:
         return None
-    (t0, q0), (t1, q1), (t2, q2) = moves[-3:]
-    v1 = (q1 - q0) / max((t1 - t0) * 1e-3, 1e-6)
-    v2 = (q2 - q1) / max((t2 - t1) * 1e-3, 1e-6)
-    return Commanded(q2, v2, (v2 - v1) / max((t2 - t1) * 1e-3, 1e-6))
+    q0, q1, q2 = moves[-3:]
+    v1, v2 = (q1 - q0) / period_s, (q2 - q1) / period_s
+    return Commanded(q2, v2, (v2 - v1) / period_s)
 
 
 def motion_from(glitch: Glitch, where: np.ndarray) -> np.ndarray:

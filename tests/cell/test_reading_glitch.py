@@ -9,14 +9,24 @@ over the drivers so that every phase gets each of them once and every driver all
 Asserted for every glitch: a glitched sample that reached the core while it was not already
 holding raised STATE_IMPLAUSIBLE at that very sample; and whenever the glitch reached a core
 that held (the glitch caused the hold, or came during one), the plant's true joints never went
-further from where they were last commanded before the onset than they already were (the
-servo's lag) or than braking takes: the distance computed here, from the journaled commands'
-velocity and acceleration and the manifest's acceleration and jerk limits (step by step, not
-with warden's code), plus the reaction time (the glitch reaches the core within a period, its
-hold goes out the next) and the servo's overshoot. Measured from the last command rather than
-from the true joint at the onset, the bound also holds when a loaded machine runs the
-emulator's physics slower than the wall clock and the arm trails its commands. Before the
-plausibility check the 200 ms glitch in pre-contact drove the arm 0.5 rad.
+further from where they were last commanded before the hold than they were from their
+command at the onset (the servo's lag) or than braking takes: the distance computed here,
+from the journaled commands' velocity and acceleration and the manifest's acceleration and
+jerk limits (step by step, not with warden's code), plus the reaction time (the hold goes
+out the tick after the one that read the glitch) and the servo's overshoot. Measured from
+the last command rather than from the true joint at the onset, the bound also holds when
+a loaded machine runs the emulator's physics slower than the wall clock and the arm trails
+its commands. The command's velocity and acceleration are per control period: warden's
+motion advances one period a tick, however late the tick; taken over the journal's wall time
+on a loaded host they were a fraction of the path's, the cause of this campaign's failures
+at load 4-9. Before the plausibility check the 200 ms glitch in pre-contact drove the arm
+0.5 rad.
+
+On the shared 2-core test host a vendor cell is sometimes kept from a phase by the load (a
+stalled loop or the device's watchdog stops it, or the cycle's time runs out in holds): the
+glitches it never injected are skipped, by name and with why, after every glitch it did
+inject has been checked; one injected and never over fails. The lockstep campaign must
+exercise them all.
 """
 
 from __future__ import annotations
@@ -56,12 +66,6 @@ TRACKING_RAD = 0.02
 part)."""
 
 
-@pytest.mark.xfail(strict=False, reason=(
-    "load-sensitive (issue 15 item 0, open): passed 3 of 3 at load 2.7 on the 2-vCPU VM; "
-    "minutes before, at load 4-9, each cell's transport-glitch hold took the true arm up to "
-    "0.45 rad from its last command (bound 0.06-0.08 rad), not yet explained (the emulators' "
-    "physics behind the wall clock, or a stale last-plausible hold target); the lockstep "
-    "campaign below is load-independent and passes"))
 @pytest.mark.parametrize("name", list(PLANS))
 def test_a_reading_glitch_never_moves_the_arm(tmp_path: Path, name: str,
                                              monkeypatch: pytest.MonkeyPatch) -> None:
@@ -80,8 +84,6 @@ def _check(glitches: list[Glitch], cell: Any, directory: Path,
            every_sample_seen: bool = False) -> None:
     """The campaign's assertions (the module docstring); ``every_sample_seen``: each glitch
     must have reached the core (a virtual clock reads every sample)."""
-    missing = [g.label for g in glitches if g.closed_ns is None]
-    assert missing == [], f"never injected or never over: {missing}"
     decisions = [json.loads(line) for line in (directory / "decisions.jsonl").open()]
     states = [e for e in map(json.loads, (directory / "journal.jsonl").open())
               if e.get("kind") == "state"]
@@ -91,7 +93,8 @@ def _check(glitches: list[Glitch], cell: Any, directory: Path,
     # The hold a glitch caused: the last command before it, and how far from it braking takes
     # the arm (a later glitch in that hold is held to the same).
     hold: tuple[np.ndarray, np.ndarray] | None = None
-    for glitch in sorted(glitches, key=lambda g: g.injected_ns or 0):
+    for glitch in sorted((g for g in glitches if g.injected_ns is not None),
+                         key=lambda g: g.injected_ns or 0):
         seen = _first_glitched_sample(glitch, states)
         assert seen is not None or not every_sample_seen, f"{glitch.label}: never read"
         in_hold = glitch.modes[0] == "SAFE_HOLD"
@@ -101,7 +104,7 @@ def _check(glitches: list[Glitch], cell: Any, directory: Path,
                          and d["t"] == seen for d in decisions)
             assert caused, f"{glitch.label}: a glitched sample at {seen} ms went unnoticed"
         if caused:
-            hold = _braking_bound(glitch, journal, period_s, limits, jerk)
+            hold = _braking_bound(glitch, seen, journal, period_s, limits, jerk)
         elif not in_hold or hold is None:
             hold = None
             continue  # never reached the core (the arm went on as commanded), or a hold
@@ -112,17 +115,43 @@ def _check(glitches: list[Glitch], cell: Any, directory: Path,
             f"{glitch.label}: the true arm went {np.round(moved, 4).tolist()} rad from the last "
             f"command before the hold, braking allows {np.round(bound, 4).tolist()}")
     assert replays_identically(directory)
+    open_ = [g.label for g in glitches if g.injected_ns is not None and g.closed_ns is None]
+    assert open_ == [], f"injected and never over: {open_}"
+    missing = [g.label for g in glitches if g.injected_ns is None]
+    assert not (missing and every_sample_seen), f"never injected: {missing}"
+    if missing:
+        pytest.skip(f"not exercised: {missing}, the cell never got there "
+                    f"({_run_end(decisions, directory)}); every glitch injected held")
 
 
-def _braking_bound(glitch: Glitch, journal: list[dict[str, Any]], period_s: float,
-                   limits: Any, jerk: float) -> tuple[np.ndarray, np.ndarray]:
-    """Where the arm was last commanded before the glitch's onset, and how far from there it
-    may go: its lag behind that command, or what braking the command takes (from the
-    commands' velocity and acceleration, the reaction time, the limits), plus overshoot."""
+def _run_end(decisions: list[dict[str, Any]], directory: Path) -> str:
+    """What kept a vendor cell from the phases left: on the loaded 2-core test host, a stop
+    the load causes (a stalled loop, the device's watchdog on a silent warden), or the
+    cycle's time running out in holds."""
+    stops = [f"{d['trigger']} at {d['t']:.0f} ms{': ' + d['detail'] if 'detail' in d else ''}"
+             for d in decisions if d["kind"] == "transition" and d.get("machine") == "fallback"
+             and d.get("to") == "CONTROLLER_STOP"]
+    if stops:
+        return stops[0]
+    summary = directory / "summary.json"
+    cycles = json.loads(summary.read_text())["cycles"]["detail"] if summary.exists() else []
+    return next((c["reason"] for c in cycles if not c["verified"]), "the run ended")
+
+
+def _braking_bound(glitch: Glitch, seen_ms: float, journal: list[dict[str, Any]],
+                   period_s: float, limits: Any, jerk: float) -> tuple[np.ndarray, np.ndarray]:
+    """Where the arm was last commanded before the hold the glitch caused, and how far from
+    there it may go: its lag behind the command at the onset, or what braking the command
+    takes (from the commands' velocity and acceleration, the reaction time, the limits),
+    plus overshoot. Before the hold, not before the onset: on a loaded host the first
+    glitched sample can reach the core ticks after the injection, and the arm goes on as
+    commanded meanwhile (a policy's pre-contact rows moved a CiA 402 arm 0.02 rad so)."""
     assert glitch.injected_ns is not None and glitch.q0 is not None
-    last = last_command(journal, glitch.injected_ns * 1e-6)
-    assert last is not None, f"{glitch.label}: no command before the glitch"
-    lag = np.abs(glitch.q0 - last.q)
+    at_onset = last_command(journal, glitch.injected_ns * 1e-6, period_s)
+    # The tick that read the glitched sample commands the hold: the command before it.
+    last = last_command(journal, seen_ms - 1e-3, period_s)
+    assert last is not None and at_onset is not None, f"{glitch.label}: no command before it"
+    lag = np.abs(glitch.q0 - at_onset.q)
     brake = np.array([abs(v) * 3 * period_s + braking_distance(
         v, a, float(limits.acceleration[j]), jerk)
         for j, (v, a) in enumerate(zip(last.qd, last.qdd, strict=True))])

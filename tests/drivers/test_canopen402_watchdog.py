@@ -162,6 +162,20 @@ async def test_deactivate_disarms_it_and_a_new_run_clears_what_a_dead_one_left(
         assert abs((await driver.read()).q[0] - start) > 0.1  # it moves again
 
 
+async def test_it_is_armed_before_the_first_tick_not_by_it(drives: DriveEmulator) -> None:
+    """Arming is an SDO round trip per drive: by the first setpoint it stalled the cell's first
+    tick 0.2-0.9 s on a loaded host, past the 150 ms state watchdog (CONTROLLER_STOP before any
+    motion, issue 15). The loop arms it before its timer starts (``before_first_tick``)."""
+    async with active(driver_for(drives), arm.control()) as driver:
+        assert consumers(drives) == every((0, 0))  # activation alone arms nothing
+        await driver.before_first_tick()
+        assert driver.state is DriverState.ACTIVE, driver.fault_detail
+        assert consumers(drives) == every((MASTER, arm.TEST_WATCHDOG_MS))
+        await stream(driver, 0.1)  # the first setpoints find it armed and feed it
+        assert driver.state is DriverState.ACTIVE, driver.fault_detail
+        assert losses(drives) == every([])
+
+
 async def test_watchdog_ms_zero_touches_neither_object(drives: DriveEmulator) -> None:
     async with active(driver_for(drives, watchdog_ms=0), arm.control()) as driver:
         await stream(driver, 0.2)
