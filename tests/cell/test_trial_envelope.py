@@ -248,6 +248,13 @@ def emulator() -> Iterator[EmulatedController]:
         yield controller
 
 
+@pytest.fixture
+def idle_emulator() -> Iterator[EmulatedController]:
+    """The UR controller without MuJoCo, for a trial that must move nothing."""
+    with EmulatedController(plant="kinematic") as controller:
+        yield controller
+
+
 class _AtTerminal:
     """``warden trial`` with a terminal (a pty) on stdin: it asks for the run's name there."""
 
@@ -288,7 +295,9 @@ def _at_rest(emulator: EmulatedController) -> bool:
 
 @pytest.mark.slow
 def test_not_confirmed_at_the_terminal_starts_nothing(
-        tmp_path: Path, emulator: EmulatedController) -> None:
+        tmp_path: Path, idle_emulator: EmulatedController) -> None:
+    """On the UR controller without MuJoCo: nothing is to move, and nothing does."""
+    emulator = idle_emulator
     manifest = _ur_trial(tmp_path, emulator)
     monitor = Monitor(manifest, tmp_path)
     results = []
