@@ -238,6 +238,14 @@ def emulator() -> Iterator[EmulatedController]:
         yield controller
 
 
+@pytest.fixture
+def idle_emulator() -> Iterator[EmulatedController]:
+    """The UR controller without MuJoCo (a fraction of the CPU, and no model to load), for a
+    trial refused before it moves anything: only its address and its RTDE link matter."""
+    with EmulatedController(plant="kinematic") as controller:
+        yield controller
+
+
 def test_the_device_watchdog_switched_off_is_refused(tmp_path: Path) -> None:
     manifest = ur_manifest(tmp_path, "127.0.0.1")  # the safety tests' UR cell: watchdog off
     manifest.write_text(manifest.read_text() + TRIAL)
@@ -246,8 +254,9 @@ def test_the_device_watchdog_switched_off_is_refused(tmp_path: Path) -> None:
 
 
 @pytest.mark.slow
-def test_no_safety_monitor_is_refused(tmp_path: Path, emulator: EmulatedController) -> None:
-    done = run_trial(_ur_trial(tmp_path, emulator), tmp_path)
+def test_no_safety_monitor_is_refused(tmp_path: Path,
+                                      idle_emulator: EmulatedController) -> None:
+    done = run_trial(_ur_trial(tmp_path, idle_emulator), tmp_path)
     _refused(done, tmp_path, "safety.status_socket", "no safety monitor answers")
 
 
@@ -271,14 +280,14 @@ def test_a_monitor_that_cannot_stop_the_arm_is_refused(tmp_path: Path) -> None:
 
 @pytest.mark.slow
 def test_a_monitor_that_has_lost_the_device_is_refused(
-        tmp_path: Path, emulator: EmulatedController) -> None:
+        tmp_path: Path, idle_emulator: EmulatedController) -> None:
     """Alive and answering is not enough: a monitor that no longer sees the arm says so, and
     the trial does not start."""
-    manifest = _ur_trial(tmp_path, emulator)
+    manifest = _ur_trial(tmp_path, idle_emulator)
     monitor = Monitor(manifest, tmp_path)
     try:
         assert monitor.wait_watching()["connected"]
-        emulator.inject("data_stall")
+        idle_emulator.inject("data_stall")
         wait_for(lambda: not monitor.status()["ok"], "the monitor to report the lost device")
         done = run_trial(manifest, tmp_path)
     finally:
@@ -288,9 +297,9 @@ def test_a_monitor_that_has_lost_the_device_is_refused(
 
 @pytest.mark.slow
 def test_a_monitor_watching_another_manifest_is_refused(
-        tmp_path: Path, emulator: EmulatedController) -> None:
-    watched = _ur_trial(tmp_path, emulator, name="watched.toml")
-    trial = _ur_trial(tmp_path, emulator, trial=TRIAL.replace("max_duration_s = 60.0",
+        tmp_path: Path, idle_emulator: EmulatedController) -> None:
+    watched = _ur_trial(tmp_path, idle_emulator, name="watched.toml")
+    trial = _ur_trial(tmp_path, idle_emulator, trial=TRIAL.replace("max_duration_s = 60.0",
                                                               "max_duration_s = 61.0"))
     monitor = Monitor(watched, tmp_path)
     try:
