@@ -9,9 +9,12 @@ later open reads a different manifest, so a second read of the path is seen, not
 
 from __future__ import annotations
 
+import array
 import errno
+import fcntl
 import os
 import shutil
+import termios
 import threading
 import time
 from pathlib import Path
@@ -48,6 +51,7 @@ class PipeFeeder(threading.Thread):
                 os.set_blocking(fd, True)
                 os.write(fd, self.first if self.reads == 0 else self.later)
                 self.reads += 1
+                _until_drained(fd)
             finally:
                 os.close(fd)
             self._until_the_reader_closes()
@@ -62,6 +66,20 @@ class PipeFeeder(threading.Thread):
     def stop(self) -> None:
         self.done.set()
         self.join(PATIENCE_S)
+
+
+def _until_drained(fd: int) -> None:
+    """Wait until the reader has taken every byte written: until then its open may not have
+    returned yet (no descriptor in /proc to wait on), and a next open would succeed on the same
+    read and append the later bytes to it (seen on a loaded host: the verified read was the
+    signed manifest followed by the swapped one)."""
+    deadline = time.monotonic() + PATIENCE_S
+    waiting = array.array("i", [1])
+    while time.monotonic() < deadline:
+        fcntl.ioctl(fd, termios.FIONREAD, waiting)
+        if waiting[0] == 0:
+            return
+        time.sleep(0.001)
 
 
 def _open_here(path: Path) -> bool:

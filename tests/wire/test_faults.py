@@ -78,7 +78,7 @@ async def test_protocol_fault_closes_cleanly_and_reconnects(
 ) -> None:
     # The silence must be declared before the core escalates the underrun it causes
     # (FREE_SPACE: 200 ms) to SAFE_HOLD, which only an operator may end.
-    async with running(server_config(faults=faults), heartbeat_timeout_s=0.2) as link:
+    async with running(server_config(faults=faults), heartbeat_timeout_ms=200.0) as link:
         counters = link.client.counters
         await wait_for(lambda: getattr(counters, counter) >= 1, counter)
         await wait_for(lambda: counters.handshakes_accepted >= 2, "a second session")

@@ -77,7 +77,7 @@ async def test_a_chunk_flood_reaches_the_core_at_the_chunk_rate_and_answers_noth
     assert refused, "the repeated answers are refused as answering nothing pending"
     assert all(line.reasons == (R.OBSERVATION_ANSWERED,) for line in refused)
     queued = seen["chunks_in"] - len(fed) - seen["chunks_dropped"]
-    assert 0 <= queued <= OTHERS_QUEUED + link.client.config.max_requests_in_flight
+    assert 0 <= queued <= OTHERS_QUEUED + link.client.config.policy.max_requests_in_flight
 
 
 async def test_frames_over_the_frame_rate_are_dropped_undecoded() -> None:
