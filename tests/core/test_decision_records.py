@@ -24,7 +24,7 @@ from kernel.core.jobs import run_job
 from kernel.core.lines import ChunkLine, HandshakeLine, Line
 from kernel.core.runtime import Core
 from kernel.journal import event_record
-from kernel.scenario import load_scenario
+from kernel.scenario.load import load_scenario
 from tests.core.test_handshake import ALLOW, HELLO, OFFER
 
 SCENARIOS = sorted((Path(__file__).resolve().parents[2] / "manifests" / "scenarios")
