@@ -36,7 +36,7 @@ class Owner(StrEnum):
     SAFETY = "safety"
 
 
-class Command(StrEnum):
+class FallbackCommand(StrEnum):
     SETPOINT = "setpoint"
     HOLD = "hold"
     CONTACT = "contact"
@@ -55,31 +55,33 @@ class ModeCard:
     """What a fallback state means for motion, and how to leave it."""
 
     owner: Owner
-    command: Command
+    command: FallbackCommand
     queue: QueueAction
     accepts_proposals: bool
     recovery: str
 
 
 MODES: dict[Mode, ModeCard] = {
-    Mode.RUNNING: ModeCard(Owner.POLICY, Command.SETPOINT, QueueAction.KEEP, True, "-"),
+    Mode.RUNNING: ModeCard(Owner.POLICY, FallbackCommand.SETPOINT, QueueAction.KEEP, True, "-"),
     Mode.DEGRADED: ModeCard(
-        Owner.FALLBACK, Command.HOLD, QueueAction.NEW_EPOCH, False,
+        Owner.FALLBACK, FallbackCommand.HOLD, QueueAction.NEW_EPOCH, False,
         "new handshake ACCEPT, then VALIDATE passes"),
     Mode.SAFE_HOLD: ModeCard(
-        Owner.FALLBACK, Command.HOLD, QueueAction.PURGE, False, "operator accept_recovery"),
+        Owner.FALLBACK, FallbackCommand.HOLD, QueueAction.PURGE, False, "operator accept_recovery"),
     Mode.REPLAN_OR_RETREAT: ModeCard(
-        Owner.PLANNER, Command.RETREAT, QueueAction.PURGE, False, "operator accept_recovery"),
+        Owner.PLANNER, FallbackCommand.RETREAT, QueueAction.PURGE, False,
+        "operator accept_recovery"),
     Mode.CONTACT_FALLBACK: ModeCard(
-        Owner.CONTACT, Command.RETREAT, QueueAction.PURGE, False, "operator accept_recovery"),
+        Owner.CONTACT, FallbackCommand.RETREAT, QueueAction.PURGE, False,
+        "operator accept_recovery"),
     Mode.CONTROLLER_STOP: ModeCard(
-        Owner.SAFETY, Command.STOP, QueueAction.PURGE, False,
+        Owner.SAFETY, FallbackCommand.STOP, QueueAction.PURGE, False,
         "controller reports ok, then operator accept_recovery"),
     Mode.HUMAN_RECOVERY: ModeCard(
-        Owner.HUMAN, Command.HOLD, QueueAction.PURGE, False,
+        Owner.HUMAN, FallbackCommand.HOLD, QueueAction.PURGE, False,
         "operator release (to SAFE_HOLD) or accept_recovery"),
     Mode.E_STOP: ModeCard(
-        Owner.SAFETY, Command.STOP, QueueAction.PURGE, False,
+        Owner.SAFETY, FallbackCommand.STOP, QueueAction.PURGE, False,
         "e-stop cleared, then operator reset (to SAFE_HOLD)"),
 }
 

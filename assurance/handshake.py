@@ -52,7 +52,7 @@ class HandshakeOffer(msgspec.Struct, frozen=True, kw_only=True):
     reason_codes: tuple[str, ...] | None = None
 
 
-class Verdict(StrEnum):
+class HandshakeVerdict(StrEnum):
     """A handshake's result (docs/contract.md §5): "connected" is not one."""
 
     ACCEPT = "ACCEPT"
@@ -60,7 +60,7 @@ class Verdict(StrEnum):
 
 
 class HandshakeDecision(msgspec.Struct, frozen=True, kw_only=True):
-    decision: Verdict
+    decision: HandshakeVerdict
     fingerprint: str | None = None
     reasons: tuple[str, ...] = ()
     protocol: int | None = None
@@ -114,17 +114,19 @@ def evaluate(
     """Decide on an offer. All checks run; a rejection lists every reason that applies."""
     typed = offer.detail if isinstance(offer, MalformedOffer) else decode_offer(offer)
     if isinstance(typed, str):
-        return HandshakeDecision(decision=Verdict.REJECT, reasons=(ReasonCode.MALFORMED,)), None
+        return HandshakeDecision(decision=HandshakeVerdict.REJECT,
+                                 reasons=(ReasonCode.MALFORMED,)), None
     reasons = list(_mismatches(hello, typed, allowlist))
     version = _common_protocol(hello.protocol, typed.protocol)
     if version is None:
         reasons.append(ReasonCode.PROTOCOL_MISMATCH)
     if reasons or version is None:
-        return HandshakeDecision(decision=Verdict.REJECT, reasons=canonical(reasons)), None
+        return HandshakeDecision(decision=HandshakeVerdict.REJECT, reasons=canonical(reasons)), None
     print_ = fingerprint(hello, typed, version)
     session = Session(typed.policy_checkpoint, typed.config_hash, print_, version,
                       typed.chunk_horizon)
-    return HandshakeDecision(decision=Verdict.ACCEPT, fingerprint=print_, protocol=version), session
+    return HandshakeDecision(decision=HandshakeVerdict.ACCEPT, fingerprint=print_,
+                             protocol=version), session
 
 
 def _mismatches(

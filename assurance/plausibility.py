@@ -137,7 +137,7 @@ class Track:
 
 
 @dataclass(frozen=True, slots=True, eq=False)
-class Verdict:
+class PlausibilityVerdict:
     track: Track | None
     """What the next judgement starts from (None: no plausible sample yet)."""
     finding: Finding | None
@@ -148,7 +148,7 @@ class Verdict:
 
 
 def judge(track: Track | None, t: int, q: np.ndarray, qd: np.ndarray | None,
-          bounds: Bounds) -> Verdict:
+          bounds: Bounds) -> PlausibilityVerdict:
     """Judge the arm's joints ``q`` (and reported velocities ``qd``, if any) sampled at ``t``.
 
     A plausible sample becomes the new anchor; an implausible one only carries the integral
@@ -157,11 +157,11 @@ def judge(track: Track | None, t: int, q: np.ndarray, qd: np.ndarray | None,
     sample, positions are judged by the velocity limit alone.
     """
     if track is not None and _repeats(track, q, qd):
-        return Verdict(track, track.last_finding)
+        return PlausibilityVerdict(track, track.last_finding)
     finding = _velocity_breach(qd, bounds)
     if track is None:
-        return Verdict(_anchored(t, q, qd, bounds.jitter_s) if finding is None else None,
-                       finding)
+        return PlausibilityVerdict(
+            _anchored(t, q, qd, bounds.jitter_s) if finding is None else None, finding)
     # Measured at most this long before its stamp: within its read, which began after the
     # sample before was stamped (a loaded machine's read can take tens of milliseconds).
     late = max(bounds.jitter_s, (t - track.last_t) * NS)
@@ -169,8 +169,8 @@ def judge(track: Track | None, t: int, q: np.ndarray, qd: np.ndarray | None,
     finding = finding or _step_breach(track, t, q, bounds) or _path_breach(
         track, advanced, q, qd, late, bounds)
     if finding is None:
-        return Verdict(_anchored(t, q, qd, late), None)
-    return Verdict(replace(advanced, last_q=q.copy(), last_finding=finding), finding)
+        return PlausibilityVerdict(_anchored(t, q, qd, late), None)
+    return PlausibilityVerdict(replace(advanced, last_q=q.copy(), last_finding=finding), finding)
 
 
 def _repeats(track: Track, q: np.ndarray, qd: np.ndarray | None) -> bool:

@@ -17,7 +17,7 @@ from typing import Protocol, runtime_checkable
 import msgspec
 
 
-class Verdict(StrEnum):
+class CheckVerdict(StrEnum):
     READY = "READY"
     NOT_READY = "NOT READY"
     NOT_EXERCISED = "NOT EXERCISED"
@@ -30,7 +30,7 @@ class Finding(msgspec.Struct, frozen=True, kw_only=True):
     name: str
     expected: str
     measured: str
-    verdict: Verdict
+    verdict: CheckVerdict
     reason: str = ""
     """Why it is not ready, or why it was not exercised (empty when ready)."""
 
@@ -49,14 +49,14 @@ class Inspectable(Protocol):
 def judged(name: str, expected: str, measured: str, problems: Sequence[str]) -> Finding:
     """READY when ``problems`` is empty, else NOT READY with every problem named."""
     if not problems:
-        return Finding(name=name, expected=expected, measured=measured, verdict=Verdict.READY)
-    return Finding(name=name, expected=expected, measured=measured, verdict=Verdict.NOT_READY,
+        return Finding(name=name, expected=expected, measured=measured, verdict=CheckVerdict.READY)
+    return Finding(name=name, expected=expected, measured=measured, verdict=CheckVerdict.NOT_READY,
                    reason="; ".join(problems))
 
 
 def not_exercised(name: str, expected: str, reason: str, measured: str = "-") -> Finding:
     return Finding(name=name, expected=expected, measured=measured,
-                   verdict=Verdict.NOT_EXERCISED, reason=reason)
+                   verdict=CheckVerdict.NOT_EXERCISED, reason=reason)
 
 
 def span(values: Sequence[float], decimals: int = 3) -> str:

@@ -16,15 +16,15 @@ from typing import Any
 
 import msgspec
 
-from drivers.readiness import Verdict
+from drivers.readiness import CheckVerdict
 from kernel.app.check import SECONDS_RANGE, Report, load_checked, run_check
 from kernel.cli_run import configure_logging, preflight
 from kernel.shell.device_lock import holding
 from kernel.signing import DEFAULT_KEYS_DIR
 
 TABLE_WIDTH = 160
-VERDICT_STYLES = {Verdict.READY: "green", Verdict.NOT_READY: "bold red",
-                  Verdict.NOT_EXERCISED: "yellow"}
+VERDICT_STYLES = {CheckVerdict.READY: "green", CheckVerdict.NOT_READY: "bold red",
+                  CheckVerdict.NOT_EXERCISED: "yellow"}
 
 
 def add_commands(commands: Any) -> None:
@@ -64,10 +64,13 @@ def _render(report: Report, to_stderr: bool) -> None:
     from rich.console import Console
     from rich.table import Table
 
-    counts = {verdict: sum(f.verdict is verdict for f in report.findings) for verdict in Verdict}
+    counts = {verdict: sum(f.verdict is verdict for f in report.findings)
+              for verdict in CheckVerdict}
     table = Table(title=f"warden check {report.manifest.path} (driver {report.device}): "
-                        f"{counts[Verdict.READY]} ready, {counts[Verdict.NOT_READY]} not ready, "
-                        f"{counts[Verdict.NOT_EXERCISED]} not exercised; no motion command sent",
+                        f"{counts[CheckVerdict.READY]} ready, "
+                        f"{counts[CheckVerdict.NOT_READY]} not ready, "
+                        f"{counts[CheckVerdict.NOT_EXERCISED]} not exercised; "
+                        "no motion command sent",
                   show_lines=True)
     for column in ("check", "expected", "measured", "verdict", "why"):
         table.add_column(column, overflow="fold")

@@ -58,7 +58,7 @@ def header(sections: Mapping[str, Any], name: str) -> dict[str, Any]:
                                                        if k in sections}}
 
 
-class Applied(msgspec.Struct, frozen=True, kw_only=True, omit_defaults=True):
+class AppliedRecord(msgspec.Struct, frozen=True, kw_only=True, omit_defaults=True):
     """The driver's answer to a command, as the journal records it."""
 
     accepted: bool
@@ -84,7 +84,7 @@ class CommandRecord(msgspec.Struct, frozen=True, kw_only=True, omit_defaults=Tru
 
     t: int
     effect: Motion
-    applied: Applied | None = None
+    applied: AppliedRecord | None = None
     origin: CommandOrigin = CommandOrigin.CORE
 
 

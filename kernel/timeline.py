@@ -10,7 +10,7 @@ from __future__ import annotations
 from collections.abc import Iterable, Iterator
 from typing import Any
 
-from assurance.handshake import Verdict
+from assurance.handshake import HandshakeVerdict
 
 _KEYS = ("command", "owner", "phase", "mode", "reason")
 
@@ -68,7 +68,7 @@ def _event(line: dict[str, Any]) -> str:
         target = line.get("requested") or line["to"]
         return f"{head}{line['machine']}: {line['from']} {verb} {target} ({line['trigger']})"
     if kind == "handshake":
-        if line["decision"] == Verdict.ACCEPT:
+        if line["decision"] == HandshakeVerdict.ACCEPT:
             return f"{head}handshake ACCEPT, fingerprint {line['fingerprint'][:12]}…"
         return f"{head}handshake REJECT ({' + '.join(line['reasons'])})"
     if kind == "queue":

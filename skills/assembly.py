@@ -21,7 +21,7 @@ import numpy as np
 
 from assurance.fallback import Mode
 from skills.contact import ContactState
-from skills.evaluator import Evaluator, InsertionEvidence, Verdict
+from skills.evaluator import Evaluator, InsertionEvidence, InsertionVerdict
 from skills.layout import CellLayout
 from skills.phases import TaskPhase
 from skills.planner import MoveStatus, Planner
@@ -29,7 +29,7 @@ from skills.planner import MoveStatus, Planner
 P = TaskPhase
 
 
-class Step(StrEnum):
+class AssemblyStep(StrEnum):
     START = "start"
     PICK_APPROACH = "pick approach"
     PICK_DESCEND = "pick descend"
@@ -140,7 +140,7 @@ class AssemblyRunner:
         self.layout, self.planner = layout, planner
         self.evaluator, self.ground_truth = evaluator, ground_truth
         self.timing = timing or CycleTiming()
-        self.step = Step.DONE
+        self.step = AssemblyStep.DONE
         self.outcome: Outcome | None = None
         self._moves = 0
         self._move_target: np.ndarray | None = None
@@ -157,7 +157,7 @@ class AssemblyRunner:
     # -- driven by the cell ----------------------------------------------------------------
 
     def begin(self, t_ns: int) -> None:
-        self._enter(Step.START, t_ns)
+        self._enter(AssemblyStep.START, t_ns)
         self.outcome, self._failure = None, ""
         self._move_target = None
         self._peak_force_n, self._depth_m = 0.0, 0.0
@@ -165,15 +165,15 @@ class AssemblyRunner:
 
     @property
     def done(self) -> bool:
-        return self.step is Step.DONE
+        return self.step is AssemblyStep.DONE
 
     def update(self, sensed: Sensed, view: CoreView) -> list[Request]:
         """Advance the cycle; returns what to ask the core for (in order)."""
         self._view = view
-        if self.step is Step.APPROACH and view.mode is not Mode.RUNNING:
+        if self.step is AssemblyStep.APPROACH and view.mode is not Mode.RUNNING:
             self._since_ns += sensed.t_ns - self._seen_ns  # the approach's clock is paused
         self._seen_ns = sensed.t_ns
-        if self.step is not Step.DONE:
+        if self.step is not AssemblyStep.DONE:
             handler = _HANDLERS.get(self.step, AssemblyRunner._planned_step)
             request = handler(self, sensed, view.phase, view.mode)
             if request is not None:
@@ -185,7 +185,8 @@ class AssemblyRunner:
 
     def _start(self, s: Sensed, phase: TaskPhase, mode: Mode) -> PhaseRequest | None:
         if phase is P.FREE_SPACE:
-            self._plan(Step.PICK_APPROACH, s, self.layout.tcp_above(self.layout.grasp_tcp, 0.1))
+            self._plan(AssemblyStep.PICK_APPROACH, s,
+                       self.layout.tcp_above(self.layout.grasp_tcp, 0.1))
             return None
         target = {P.IDLE: P.VALIDATE, P.VALIDATE: P.FREE_SPACE}.get(phase)
         return self._request(target, s, mode) if target else None
@@ -203,24 +204,24 @@ class AssemblyRunner:
         return _AFTER_MOVE[self.step](self, s, phase, mode)
 
     def _after_pick_approach(self, s: Sensed, phase: TaskPhase, mode: Mode) -> None:
-        self._plan(Step.PICK_DESCEND, s, self.layout.grasp_tcp)
+        self._plan(AssemblyStep.PICK_DESCEND, s, self.layout.grasp_tcp)
 
     def _after_pick_descend(self, s: Sensed, phase: TaskPhase, mode: Mode) -> None:
         self._requests.append(GripperRequest(self.layout.gripper_closed))
-        self._enter(Step.GRASP, s.t_ns)
+        self._enter(AssemblyStep.GRASP, s.t_ns)
 
     def _grasp(self, s: Sensed, phase: TaskPhase, mode: Mode) -> None:
         if self._elapsed(s) >= self.timing.grasp_s:
             lift = self.layout.tcp_above(self.layout.peg_start, self.layout.clearance_height)
-            self._plan(Step.LIFT, s, lift)
+            self._plan(AssemblyStep.LIFT, s, lift)
 
     def _after_lift(self, s: Sensed, phase: TaskPhase, mode: Mode) -> None:
-        self._plan(Step.TRANSPORT, s, self.layout.staging_tcp)
+        self._plan(AssemblyStep.TRANSPORT, s, self.layout.staging_tcp)
 
     def _after_transport(self, s: Sensed, phase: TaskPhase, mode: Mode) -> PhaseRequest | None:
         if phase is P.PRE_CONTACT:
             self._move_target = None
-            self._enter(Step.APPROACH, s.t_ns)
+            self._enter(AssemblyStep.APPROACH, s.t_ns)
             return None
         return self._request(P.PRE_CONTACT, s, mode)
 
@@ -229,7 +230,7 @@ class AssemblyRunner:
             layout = self.layout
             bottom = layout.pre_insert_tcp[2] - layout.pre_insert_gap - (
                 layout.hole_depth - self.timing.insert_short_of_bottom_m)
-            self._enter(Step.INSERT, s.t_ns)
+            self._enter(AssemblyStep.INSERT, s.t_ns)
             return InsertRequest(layout.hole_top[:2], float(bottom), layout.tool_down)
         if self._elapsed(s) > self.timing.approach_timeout_s:
             return self._fail("pre-contact approach timed out", s, mode)
@@ -241,7 +242,7 @@ class AssemblyRunner:
     def _insert(self, s: Sensed, phase: TaskPhase, mode: Mode) -> PhaseRequest | None:
         self._peak_force_n = max(self._peak_force_n, s.force_norm)
         if phase is P.VERIFY:
-            self._enter(Step.VERIFY, s.t_ns)
+            self._enter(AssemblyStep.VERIFY, s.t_ns)
             return None
         if phase is P.PRE_CONTACT:  # a hold interrupted contact: the insertion is not resumed
             return self._fail("insertion interrupted by a fallback", s, mode)
@@ -259,12 +260,12 @@ class AssemblyRunner:
 
     def _verify(self, s: Sensed, phase: TaskPhase, mode: Mode) -> PhaseRequest | None:
         if phase is P.RETREAT:
-            self._enter(Step.RELEASE, s.t_ns)
+            self._enter(AssemblyStep.RELEASE, s.t_ns)
             self._requests.append(GripperRequest(self.layout.gripper_open))
             return None
         if self.outcome is None:
             truth = self.ground_truth() if self.ground_truth is not None else None
-            verdict: Verdict = self.evaluator.verdict(self.insertion_evidence(s), truth)
+            verdict: InsertionVerdict = self.evaluator.verdict(self.insertion_evidence(s), truth)
             self.outcome = Outcome(verdict.verified, verdict.depth_m, verdict.reason)
         return self._request(P.RETREAT, s, mode)
 
@@ -272,17 +273,17 @@ class AssemblyRunner:
         if self._elapsed(s) >= self.timing.release_s:
             tcp = self.planner.kin.forward(s.q).position
             lift = np.array([tcp[0], tcp[1], self.layout.staging_tcp[2]])
-            self._plan(Step.RETREAT_LIFT, s, lift)
+            self._plan(AssemblyStep.RETREAT_LIFT, s, lift)
 
     def _after_retreat_lift(self, s: Sensed, phase: TaskPhase, mode: Mode) -> None:
-        self._move_to(Step.RETREAT_HOME, s, self.layout.home_q)
+        self._move_to(AssemblyStep.RETREAT_HOME, s, self.layout.home_q)
 
     def _after_retreat_home(self, s: Sensed, phase: TaskPhase, mode: Mode) -> PhaseRequest | None:
         if phase is P.IDLE:
             self._move_target = None
             if self.outcome is None:
                 self.outcome = Outcome(False, self._depth_m, self._failure or "no verdict")
-            self._enter(Step.DONE, s.t_ns)
+            self._enter(AssemblyStep.DONE, s.t_ns)
             return None
         return self._request(P.IDLE, s, mode)
 
@@ -316,7 +317,7 @@ class AssemblyRunner:
 
     # -- helpers -----------------------------------------------------------------------------
 
-    def _plan(self, step: Step, s: Sensed, tcp: np.ndarray) -> None:
+    def _plan(self, step: AssemblyStep, s: Sensed, tcp: np.ndarray) -> None:
         """Ask for a classical move that ends with the tool down at ``tcp``.
 
         Raises:
@@ -324,13 +325,13 @@ class AssemblyRunner:
         """
         self._move_to(step, s, self.planner.solve(s.q, tcp))
 
-    def _move_to(self, step: Step, s: Sensed, target: np.ndarray) -> None:
+    def _move_to(self, step: AssemblyStep, s: Sensed, target: np.ndarray) -> None:
         self._moves += 1
         self._move_target = np.asarray(target, dtype=float)
         self._requests.append(MoveRequest(self._moves, self._move_target))
         self._enter(step, s.t_ns)
 
-    def _enter(self, step: Step, t_ns: int) -> None:
+    def _enter(self, step: AssemblyStep, t_ns: int) -> None:
         self.step, self._since_ns = step, t_ns
 
     def _elapsed(self, s: Sensed) -> float:
@@ -357,26 +358,26 @@ class AssemblyRunner:
         """Give the cycle up: retreat, release the peg, go home, report why."""
         self._failure = reason
         self.outcome = Outcome(False, self._depth_m, reason)
-        self._enter(Step.VERIFY, s.t_ns)
+        self._enter(AssemblyStep.VERIFY, s.t_ns)
         return self._request(P.RETREAT, s, mode)
 
 
 _WITHOUT_POLICY = frozenset({P.RETREAT, P.IDLE})
 """Phases the cycle may still ask for in DEGRADED: the planner retreats, nothing is learned."""
 
-_HANDLERS: dict[Step, Callable[..., PhaseRequest | None]] = {
-    Step.START: AssemblyRunner._start,
-    Step.GRASP: AssemblyRunner._grasp,
-    Step.APPROACH: AssemblyRunner._approach,
-    Step.INSERT: AssemblyRunner._insert,
-    Step.VERIFY: AssemblyRunner._verify,
-    Step.RELEASE: AssemblyRunner._release,
+_HANDLERS: dict[AssemblyStep, Callable[..., PhaseRequest | None]] = {
+    AssemblyStep.START: AssemblyRunner._start,
+    AssemblyStep.GRASP: AssemblyRunner._grasp,
+    AssemblyStep.APPROACH: AssemblyRunner._approach,
+    AssemblyStep.INSERT: AssemblyRunner._insert,
+    AssemblyStep.VERIFY: AssemblyRunner._verify,
+    AssemblyStep.RELEASE: AssemblyRunner._release,
 }
-_AFTER_MOVE: dict[Step, Callable[..., PhaseRequest | None]] = {
-    Step.PICK_APPROACH: AssemblyRunner._after_pick_approach,
-    Step.PICK_DESCEND: AssemblyRunner._after_pick_descend,
-    Step.LIFT: AssemblyRunner._after_lift,
-    Step.TRANSPORT: AssemblyRunner._after_transport,
-    Step.RETREAT_LIFT: AssemblyRunner._after_retreat_lift,
-    Step.RETREAT_HOME: AssemblyRunner._after_retreat_home,
+_AFTER_MOVE: dict[AssemblyStep, Callable[..., PhaseRequest | None]] = {
+    AssemblyStep.PICK_APPROACH: AssemblyRunner._after_pick_approach,
+    AssemblyStep.PICK_DESCEND: AssemblyRunner._after_pick_descend,
+    AssemblyStep.LIFT: AssemblyRunner._after_lift,
+    AssemblyStep.TRANSPORT: AssemblyRunner._after_transport,
+    AssemblyStep.RETREAT_LIFT: AssemblyRunner._after_retreat_lift,
+    AssemblyStep.RETREAT_HOME: AssemblyRunner._after_retreat_home,
 }

@@ -28,7 +28,7 @@ class InsertionEvidence:
 
 
 @dataclass(frozen=True, slots=True)
-class Verdict:
+class InsertionVerdict:
     verified: bool
     depth_m: float
     reason: str
@@ -45,21 +45,21 @@ class Evaluator:
     """An insertion that needed more force than this is not a clean one."""
 
     def verdict(self, evidence: InsertionEvidence | None,
-                ground_truth_m: float | None = None) -> Verdict:
+                ground_truth_m: float | None = None) -> InsertionVerdict:
         """The verdict on ``evidence``; ``ground_truth_m`` (a simulator's) must agree."""
         if evidence is None or not all(map(math.isfinite, (
                 evidence.depth_m, evidence.lateral_m, evidence.peak_force_n))):
-            return Verdict(False, 0.0, "no measured evidence of the insertion")
+            return InsertionVerdict(False, 0.0, "no measured evidence of the insertion")
         failure = self._measured_failure(evidence)
         if failure:
-            return Verdict(False, evidence.depth_m, failure)
+            return InsertionVerdict(False, evidence.depth_m, failure)
         if ground_truth_m is not None and not ground_truth_m >= self.tolerance_m:
-            return Verdict(False, evidence.depth_m, (
+            return InsertionVerdict(False, evidence.depth_m, (
                 f"measured {_mm(evidence.depth_m)} deep, but the simulator's ground truth "
                 f"says {_mm(ground_truth_m)}: they disagree"))
         truth = "" if ground_truth_m is None else f", ground truth {_mm(ground_truth_m)}"
-        return Verdict(True, evidence.depth_m, f"inserted: measured {_mm(evidence.depth_m)}"
-                                               f"{truth}")
+        return InsertionVerdict(True, evidence.depth_m,
+                                f"inserted: measured {_mm(evidence.depth_m)}{truth}")
 
     def _measured_failure(self, evidence: InsertionEvidence) -> str:
         if evidence.depth_m < self.tolerance_m:

@@ -26,7 +26,7 @@ from drivers.canopen402.tables import (
     QUICK_STOP_HOLD,
     RPDO_LAYOUT,
     TPDO_LAYOUT,
-    Command,
+    Controlword,
     DriveState,
     Index,
     Mode,
@@ -115,8 +115,8 @@ def clear_fault(node: Node402, settings: CiA402Settings, health: HealthMonitor) 
             settings.name, f"{settings.node_label(node.id)} is in FAULT at start ({detail}); "
             "remove the cause, then reset it on the drive or set reset_faults_on_connect = true",
         )
-    node.sdo[Index.CONTROLWORD].raw = Command.DISABLE_VOLTAGE
-    node.sdo[Index.CONTROLWORD].raw = Command.FAULT_RESET  # the reset acts on the rising edge
+    node.sdo[Index.CONTROLWORD].raw = Controlword.DISABLE_VOLTAGE
+    node.sdo[Index.CONTROLWORD].raw = Controlword.FAULT_RESET  # the reset acts on the rising edge
     deadline = time.monotonic() + FAULT_RESET_TIMEOUT_S
     while decode_state(node.sdo[Index.STATUSWORD].raw) is DriveState.FAULT:
         if time.monotonic() > deadline:

@@ -14,15 +14,15 @@ from assurance.reasons import ReasonCode
 from drivers.base import DeviceFault
 from drivers.canopen402._sdk import Node402
 from drivers.canopen402.settings import CiA402Settings
-from drivers.canopen402.tables import Command, DriveState, decode_state
+from drivers.canopen402.tables import Controlword, DriveState, decode_state
 
 FAULTY = frozenset({DriveState.FAULT, DriveState.FAULT_REACTION_ACTIVE})
 
-ENABLE_STEPS: dict[DriveState, tuple[Command, DriveState]] = {
-    DriveState.SWITCH_ON_DISABLED: (Command.SHUTDOWN, DriveState.READY_TO_SWITCH_ON),
-    DriveState.READY_TO_SWITCH_ON: (Command.SWITCH_ON, DriveState.SWITCHED_ON),
-    DriveState.SWITCHED_ON: (Command.ENABLE_OPERATION, DriveState.OPERATION_ENABLED),
-    DriveState.QUICK_STOP_ACTIVE: (Command.ENABLE_OPERATION, DriveState.OPERATION_ENABLED),
+ENABLE_STEPS: dict[DriveState, tuple[Controlword, DriveState]] = {
+    DriveState.SWITCH_ON_DISABLED: (Controlword.SHUTDOWN, DriveState.READY_TO_SWITCH_ON),
+    DriveState.READY_TO_SWITCH_ON: (Controlword.SWITCH_ON, DriveState.SWITCHED_ON),
+    DriveState.SWITCHED_ON: (Controlword.ENABLE_OPERATION, DriveState.OPERATION_ENABLED),
+    DriveState.QUICK_STOP_ACTIVE: (Controlword.ENABLE_OPERATION, DriveState.OPERATION_ENABLED),
 }
 """From each state, the command that moves one transition closer to OPERATION ENABLED."""
 
@@ -51,19 +51,19 @@ def walk_to(node: Node402, target: DriveState, settings: CiA402Settings) -> None
     node.controlword = _holding_command(target)
 
 
-def _next_step(state: DriveState, target: DriveState) -> tuple[Command, DriveState] | None:
+def _next_step(state: DriveState, target: DriveState) -> tuple[Controlword, DriveState] | None:
     if state is DriveState.NOT_READY_TO_SWITCH_ON:
         return None
     if target is DriveState.SWITCH_ON_DISABLED:
-        return Command.DISABLE_VOLTAGE, DriveState.SWITCH_ON_DISABLED
+        return Controlword.DISABLE_VOLTAGE, DriveState.SWITCH_ON_DISABLED
     return ENABLE_STEPS.get(state)
 
 
-def _holding_command(target: DriveState) -> Command:
+def _holding_command(target: DriveState) -> Controlword:
     """The controlword that keeps the drive in ``target`` on every following cycle."""
     if target is DriveState.OPERATION_ENABLED:
-        return Command.ENABLE_OPERATION
-    return Command.DISABLE_VOLTAGE
+        return Controlword.ENABLE_OPERATION
+    return Controlword.DISABLE_VOLTAGE
 
 
 def _await_state(node: Node402, expected: DriveState, deadline: float,

@@ -57,8 +57,7 @@ from drivers.canopen402.health import HealthMonitor
 from drivers.canopen402.link import Link, build_link
 from drivers.canopen402.process_data import joint_readings, start_bus_cycle
 from drivers.canopen402.settings import CiA402Settings
-from drivers.canopen402.tables import Command as Controlword
-from drivers.canopen402.tables import DriveState, Index
+from drivers.canopen402.tables import Controlword, DriveState, Index
 from drivers.canopen402.watchdog import DriveWatchdog
 from drivers.device_thread import DeviceThread
 from drivers.readiness import Finding

@@ -26,7 +26,7 @@ from canopen.objectdictionary import ODVariable
 from drivers.base import DriverInitError
 from drivers.canopen402._sdk import CanBus, Network, Node402, Notifier
 from drivers.canopen402.settings import CiA402Settings
-from drivers.canopen402.tables import DEFAULT_EDS, Command
+from drivers.canopen402.tables import DEFAULT_EDS, Controlword
 from drivers.canopen402.udp_bus import confine_to_host, widen_receive_buffer
 
 log = logging.getLogger(__name__)
@@ -90,7 +90,7 @@ class Link:
         """Quick-stop every drive and ``send`` one last bus cycle; best effort (on the way out)."""
         try:
             for node in self.nodes:
-                node.controlword = Command.QUICK_STOP
+                node.controlword = Controlword.QUICK_STOP
             send()
         except (can.CanError, RuntimeError):
             pass  # the link is already gone: nothing more reaches the drives from here

@@ -115,7 +115,7 @@ class StatusBit(IntEnum):
     FOLLOWING_ERROR = 1 << 13
 
 
-class Command(IntEnum):
+class Controlword(IntEnum):
     """Controlword values for the device-control commands (CiA 402-2, table 31)."""
 
     DISABLE_VOLTAGE = 0x00

@@ -33,7 +33,7 @@ from itertools import pairwise
 from pathlib import Path
 
 from drivers.base import ControlConfig, DeviceFault, Driver, DriverError, StateSample
-from drivers.readiness import Finding, Verdict, judged, not_exercised, span
+from drivers.readiness import CheckVerdict, Finding, judged, not_exercised, span
 from kernel import signing
 from kernel.app.compose import world_for
 from kernel.app.device import World
@@ -62,7 +62,7 @@ class Report:
     @property
     def exit_code(self) -> int:
         """0: nothing NOT READY (a NOT EXERCISED row says what check cannot try); 1 otherwise."""
-        return 1 if any(f.verdict is Verdict.NOT_READY for f in self.findings) else 0
+        return 1 if any(f.verdict is CheckVerdict.NOT_READY for f in self.findings) else 0
 
 
 def load_checked(path: Path, keys: Path) -> tuple[Manifest, Finding]:
@@ -79,7 +79,7 @@ def load_checked(path: Path, keys: Path) -> tuple[Manifest, Finding]:
     except signing.Unsigned as error:
         manifest = load_manifest(path)
         return manifest, Finding(name="manifest signature", expected=expected,
-                                 measured="no signature file", verdict=Verdict.NOT_READY,
+                                 measured="no signature file", verdict=CheckVerdict.NOT_READY,
                                  reason=f"{error}; `warden trial` refuses it")
     except signing.SignatureError as error:
         raise ManifestError(f"{error} (check verifies a signature whenever there is one)"

@@ -39,8 +39,7 @@ from kernel.core.events import (
     RecorderEvent,
     StateEvent,
 )
-from kernel.journal import Applied as JournaledApplied
-from kernel.journal import CommandOrigin
+from kernel.journal import AppliedRecord, CommandOrigin
 from kernel.shell.gateway import CoreGateway
 from kernel.summary import CycleResult
 from skills.assembly import (
@@ -154,15 +153,15 @@ class ControlLoop:
         except DriverError:
             return await self.driver.read()  # FAULT now: the lifecycle answers from its record
 
-    async def _write(self, motion: Motion) -> JournaledApplied:
+    async def _write(self, motion: Motion) -> AppliedRecord:
         """Send the command; a failing device is FAULT from now on, reported next tick."""
         try:
             applied = await self.driver.write(driver_command(motion))
         except DriverError as error:
-            return JournaledApplied(accepted=False, reason=error.reason)
+            return AppliedRecord(accepted=False, reason=error.reason)
         return _journaled(applied)
 
-    def _answer(self, t: int, applied: JournaledApplied) -> None:
+    def _answer(self, t: int, applied: AppliedRecord) -> None:
         """A command the device itself refused is an event for the core (CONTROLLER_REJECT →
         CONTROLLER_STOP); the first one it accepts again reports the controller healthy."""
         if applied.accepted:
@@ -242,8 +241,8 @@ def driver_command(motion: Motion) -> Command:
                    gripper=motion.gripper)
 
 
-def _journaled(applied: Applied) -> JournaledApplied:
-    return JournaledApplied(accepted=applied.accepted, reason=applied.reason,
+def _journaled(applied: Applied) -> AppliedRecord:
+    return AppliedRecord(accepted=applied.accepted, reason=applied.reason,
                             t_device_ns=applied.t_mono_ns)
 
 

@@ -10,8 +10,8 @@ from enum import StrEnum
 
 import msgspec
 
-from assurance.fallback import Command, Mode, Owner
-from assurance.handshake import Verdict
+from assurance.fallback import FallbackCommand, Mode, Owner
+from assurance.handshake import HandshakeVerdict
 from assurance.reasons import ReasonCode
 from skills.phases import TaskPhase
 
@@ -84,7 +84,7 @@ class ChunkLine(msgspec.Struct, frozen=True, kw_only=True, tag_field="kind", tag
 class TickLine(msgspec.Struct, frozen=True, kw_only=True, tag_field="kind", tag="tick",
                omit_defaults=True):
     t: Ms
-    command: Command
+    command: FallbackCommand
     owner: Owner
     sent: SentRef | None
     phase: TaskPhase
@@ -116,7 +116,7 @@ class TransitionLine(msgspec.Struct, frozen=True, kw_only=True, tag_field="kind"
 class HandshakeLine(msgspec.Struct, frozen=True, kw_only=True, tag_field="kind",
                     tag="handshake", omit_defaults=True):
     t: Ms
-    decision: Verdict
+    decision: HandshakeVerdict
     fingerprint: str | None = None
     reasons: tuple[ReasonCode, ...] = ()
     protocol: int | None = None

@@ -27,8 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from assurance.clock import ns_to_ms
-from assurance.fallback import Command as Cmd
-from assurance.fallback import Owner
+from assurance.fallback import FallbackCommand, Owner
 from kernel.core.config import CoreConfig
 from kernel.core.effects import Hold, Motion, Retreat, Setpoint, Stop
 from kernel.core.lines import Line, MotionDecision, MotionLine, MotionRequest
@@ -90,7 +89,7 @@ class MotionContext:
         self.emit = emit
 
 
-def motion_for(m: MotionState, ctx: MotionContext, command: Cmd, owner: Owner,
+def motion_for(m: MotionState, ctx: MotionContext, command: FallbackCommand, owner: Owner,
                target: np.ndarray | None, sent: tuple[str, int] | None,
                stream: tuple[np.ndarray, int] | None = None,
                relax: float | None = None) -> Motion:
@@ -98,19 +97,20 @@ def motion_for(m: MotionState, ctx: MotionContext, command: Cmd, owner: Owner,
     a queued action, its step from the action before and the action grid's interval.
     ``relax``: the contact owner stops pressing and holds at that fraction of its stiffness."""
     _start(m, ctx)
-    planner_tick = owner is Owner.PLANNER and command in (Cmd.SETPOINT, Cmd.RETREAT)
+    planner_tick = owner is Owner.PLANNER and command in (FallbackCommand.SETPOINT,
+                                                          FallbackCommand.RETREAT)
     resuming = planner_tick and not m.planner_had_tick
     m.planner_had_tick = planner_tick
-    if command is Cmd.STOP:
+    if command is FallbackCommand.STOP:
         _restart(m, ctx.measured)
         return Stop(gripper=m.gripper, owner=owner)
-    if command is Cmd.HOLD and owner is Owner.HUMAN:
+    if command is FallbackCommand.HOLD and owner is Owner.HUMAN:
         _restart(m, ctx.measured)
         return Hold(gripper=m.gripper, owner=owner)
     if owner is Owner.CONTACT:
         return _contact(m, ctx, command, target, sent is not None, relax)
     if planner_tick:
-        return _planned(m, ctx, resuming, retreat=command is Cmd.RETREAT)
+        return _planned(m, ctx, resuming, retreat=command is FallbackCommand.RETREAT)
     goal = ctx.measured if target is None else np.asarray(target)[ctx.arm]
     arm_stream = None if stream is None else (np.asarray(stream[0])[ctx.arm], stream[1])
     q = _interpolated(m, ctx, goal, arm_stream)
@@ -208,11 +208,11 @@ def _planner_effect(m: MotionState, q: tuple[float, ...], retreat: bool) -> Moti
     return Setpoint(q=q, gripper=m.gripper, owner=Owner.PLANNER)
 
 
-def _contact(m: MotionState, ctx: MotionContext, command: Cmd, target: np.ndarray | None,
-             bounded: bool, relax: float | None = None) -> Motion:
+def _contact(m: MotionState, ctx: MotionContext, command: FallbackCommand,
+             target: np.ndarray | None, bounded: bool, relax: float | None = None) -> Motion:
     contact = m.contact
     measured = _inside(m, ctx.measured)  # a measured overshoot is never a target
-    if command is Cmd.RETREAT:
+    if command is FallbackCommand.RETREAT:
         contact.begin_retreat(measured)
     elif relax is not None:
         contact.relax(measured, relax)
@@ -234,7 +234,7 @@ def _contact(m: MotionState, ctx: MotionContext, command: Cmd, target: np.ndarra
     compliant = ctx.config.motion.impedance
     stiffness = tuple(law.stiffness.tolist()) if compliant else ()
     damping = tuple(law.damping.tolist()) if compliant else ()
-    if command is Cmd.RETREAT:
+    if command is FallbackCommand.RETREAT:
         return Retreat(q=q, gripper=m.gripper, owner=Owner.CONTACT, stiffness=stiffness,
                        damping=damping)
     return Setpoint(q=q, gripper=m.gripper, owner=Owner.CONTACT, stiffness=stiffness,

@@ -15,7 +15,7 @@ import msgspec
 import numpy as np
 
 from assurance.clock import ns_to_ms
-from assurance.fallback import MODES, Command, Mode, Owner
+from assurance.fallback import MODES, FallbackCommand, Mode, Owner
 from assurance.policy import LinkLoss
 from assurance.queue import Row, SentRow
 from assurance.reasons import ReasonCode as R
@@ -31,7 +31,7 @@ class TickCommand(msgspec.Struct, frozen=True, eq=False):
     """Who owns this period and where it may go (``target``: a joint vector where one applies);
     :mod:`kernel.core.motion` turns it into the one motion effect of the tick."""
 
-    command: Command
+    command: FallbackCommand
     owner: Owner
     target: np.ndarray | None
     sent: SentRef | None
@@ -59,7 +59,8 @@ def tick(state: CoreState) -> TickCommand:
         decision = _decide(state, row)
         _track_hold(state, decision)
         motion = _motion(state, decision, row)
-    policy_setpoint = decision.command is Command.SETPOINT and decision.owner is Owner.POLICY
+    policy_setpoint = (decision.command is FallbackCommand.SETPOINT
+                       and decision.owner is Owner.POLICY)
     state.last_setpoint = SentRow.of(row) if policy_setpoint and row is not None else None
     _log(state, decision)
     state.effect(motion)
@@ -125,7 +126,7 @@ def _decide(state: CoreState, row: Row | None) -> TickCommand:
     if mode is Mode.DEGRADED:
         return _degraded(state)
     card = MODES[mode]
-    holds = card.command is Command.HOLD and card.owner is not Owner.HUMAN
+    holds = card.command is FallbackCommand.HOLD and card.owner is not Owner.HUMAN
     target = _hold(state) if holds else None
     return TickCommand(card.command, card.owner, target, None, state.fallback.cause)
 
@@ -137,10 +138,11 @@ def _running(state: CoreState, row: Row | None) -> TickCommand:
     if executor is Executor.CONTACT:
         return _contact(state, row)
     if executor is Executor.PLANNER:
-        command = Command.RETREAT if state.task.phase is TaskPhase.RETREAT else Command.SETPOINT
+        command = (FallbackCommand.RETREAT if state.task.phase is TaskPhase.RETREAT
+                   else FallbackCommand.SETPOINT)
         return TickCommand(command, Owner.PLANNER, None, None, R.PHASE_OWNER)
     owner = Owner.FALLBACK if state.task.phase is TaskPhase.VALIDATE else Owner.PLANNER
-    return TickCommand(Command.HOLD, owner, _hold(state), None, R.PHASE_OWNER)
+    return TickCommand(FallbackCommand.HOLD, owner, _hold(state), None, R.PHASE_OWNER)
 
 
 def _policy(state: CoreState, row: Row | None) -> TickCommand:
@@ -148,10 +150,11 @@ def _policy(state: CoreState, row: Row | None) -> TickCommand:
         state.executed_in_epoch = True
         state.underrun_since = None
         sent = SentRef(row.segment.chunk_id, row.chunk_index)
-        return TickCommand(Command.SETPOINT, Owner.POLICY, row.q, sent, None, row.segment.t_obs)
+        return TickCommand(FallbackCommand.SETPOINT, Owner.POLICY, row.q, sent, None,
+                           row.segment.t_obs)
     if _underrun_escalates(state):
         return _decide(state, None)
-    return TickCommand(Command.HOLD, Owner.FALLBACK, _hold(state), None, R.UNDERRUN)
+    return TickCommand(FallbackCommand.HOLD, Owner.FALLBACK, _hold(state), None, R.UNDERRUN)
 
 
 def _underrun_escalates(state: CoreState) -> bool:
@@ -168,9 +171,9 @@ def _underrun_escalates(state: CoreState) -> bool:
 def _contact(state: CoreState, row: Row | None) -> TickCommand:
     if row is not None:
         sent = SentRef(row.segment.chunk_id, row.chunk_index)
-        return TickCommand(Command.CONTACT, Owner.CONTACT, row.q, sent, R.PHASE_OWNER,
+        return TickCommand(FallbackCommand.CONTACT, Owner.CONTACT, row.q, sent, R.PHASE_OWNER,
                            row.segment.t_obs)
-    return TickCommand(Command.CONTACT, Owner.CONTACT, _hold(state), None, R.UNDERRUN)
+    return TickCommand(FallbackCommand.CONTACT, Owner.CONTACT, _hold(state), None, R.UNDERRUN)
 
 
 def _degraded(state: CoreState) -> TickCommand:
@@ -182,13 +185,14 @@ def _degraded(state: CoreState) -> TickCommand:
     if executor is Executor.CONTACT:
         policy = state.card.policy
         if policy.link_loss is LinkLoss.RETRACT:
-            return TickCommand(Command.RETREAT, Owner.CONTACT, None, None, cause)
-        return TickCommand(Command.CONTACT, Owner.CONTACT, _hold(state), None, cause,
+            return TickCommand(FallbackCommand.RETREAT, Owner.CONTACT, None, None, cause)
+        return TickCommand(FallbackCommand.CONTACT, Owner.CONTACT, _hold(state), None, cause,
                            relax=policy.link_loss_hold_factor)
     if executor is Executor.PLANNER:
-        command = Command.RETREAT if state.task.phase is TaskPhase.RETREAT else Command.SETPOINT
+        command = (FallbackCommand.RETREAT if state.task.phase is TaskPhase.RETREAT
+                   else FallbackCommand.SETPOINT)
         return TickCommand(command, Owner.PLANNER, None, None, cause)
-    return TickCommand(Command.HOLD, Owner.FALLBACK, _hold(state), None, cause)
+    return TickCommand(FallbackCommand.HOLD, Owner.FALLBACK, _hold(state), None, cause)
 
 
 def _hold(state: CoreState) -> np.ndarray:

@@ -52,7 +52,7 @@ from kernel.core.events import (
     TickEvent,
 )
 from kernel.core.jobs import JobResult
-from kernel.journal import COMMAND_ORIGINS, Applied, CommandOrigin, CommandRecord
+from kernel.journal import COMMAND_ORIGINS, AppliedRecord, CommandOrigin, CommandRecord
 from kernel.scenario.bounds import CLOCK_OFFSET_MAX_MS, EVENT_TIME_MAX_MS
 from kernel.scenario.fields import (
     Where,
@@ -218,7 +218,8 @@ def _command(t: int, item: Mapping[str, Any], where: Where, _: JointLimits) -> I
     applied = item.get("applied")
     return CommandRecord(
         t=t, effect=_converted(item.get("effect"), Motion, where.at("effect")),
-        applied=None if applied is None else _converted(applied, Applied, where.at("applied")),
+        applied=(None if applied is None
+                 else _converted(applied, AppliedRecord, where.at("applied"))),
         origin=CommandOrigin(choice(item, "origin", where, COMMAND_ORIGINS,
                                     default=CommandOrigin.CORE)))
 

@@ -27,7 +27,7 @@ from kernel.core.effects import DecisionRecord, Effect, Motion, Step
 from kernel.core.events import Event, TickEvent
 from kernel.core.lines import Line
 from kernel.core.runtime import Core, CoreStatus
-from kernel.journal import Applied, CommandOrigin, CommandRecord
+from kernel.journal import AppliedRecord, CommandOrigin, CommandRecord
 from kernel.shell.link_types import RobotSample
 from kernel.shell.recorder import Recorder
 from kernel.shell.timer import Clock
@@ -106,7 +106,7 @@ class CoreGateway:
         it): the command the core decided for the arm (None only once the run is over)."""
         return self.feed(TickEvent(t=t_ns, skipped=skipped)).motion
 
-    def record_command(self, t_ns: int, effect: Motion, applied: Applied | None,
+    def record_command(self, t_ns: int, effect: Motion, applied: AppliedRecord | None,
                        origin: CommandOrigin = CommandOrigin.CORE) -> None:
         """Journal what was written to the driver and what the driver answered."""
         if self.recorder is not None and not self.closed:

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from typing import Protocol
 
 from assurance.envelope import MalformedChunk, decode_wire_chunk
-from assurance.handshake import ClientHello, HandshakeDecision, HandshakeOffer, Verdict
+from assurance.handshake import ClientHello, HandshakeDecision, HandshakeOffer, HandshakeVerdict
 from kernel import wire
 from kernel.core import events as ev
 from kernel.core.effects import ChunkDecision, DecisionRecord
@@ -175,7 +175,7 @@ class WardenProtocol:
 
     def _decided(self, decision: HandshakeDecision, queue_epoch: int) -> list[Output]:
         sent = self._send(wire.Decision(decision=decision, queue_epoch=queue_epoch))
-        if decision.decision != Verdict.ACCEPT or decision.protocol is None:
+        if decision.decision != HandshakeVerdict.ACCEPT or decision.protocol is None:
             self.counters.handshakes_rejected += 1
             return [sent, Ended(ByeReason.HANDSHAKE_REJECTED, ",".join(decision.reasons))]
         self.counters.handshakes_accepted += 1

@@ -19,7 +19,7 @@ from enum import StrEnum
 import msgspec
 
 
-class Verdict(StrEnum):
+class HandshakeVerdict(StrEnum):
     ACCEPT = "ACCEPT"
     REJECT = "REJECT"
 
@@ -57,7 +57,7 @@ class HandshakeOffer(msgspec.Struct, frozen=True, kw_only=True):
 
 
 class HandshakeDecision(msgspec.Struct, frozen=True, kw_only=True):
-    decision: Verdict
+    decision: HandshakeVerdict
     fingerprint: str | None = None
     reasons: tuple[str, ...] = ()
     protocol: int | None = None

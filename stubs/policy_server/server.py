@@ -41,7 +41,7 @@ from stubs.policy_server.faults import (
     oversized_frame,
     unknown_type_frame,
 )
-from stubs.policy_server.handshake import HandshakeOffer, Verdict, fingerprint
+from stubs.policy_server.handshake import HandshakeOffer, HandshakeVerdict, fingerprint
 from stubs.policy_server.protocol import (
     MAX_FRAME_BYTES,
     Bye,
@@ -250,7 +250,7 @@ class _Connection:
         self.decided = True
         self.stats.decisions.append(message)
         decision = message.decision
-        if decision.decision is not Verdict.ACCEPT:
+        if decision.decision is not HandshakeVerdict.ACCEPT:
             return  # the client closes; nothing may be sent for a rejected session
         if decision.protocol is None:
             raise ProtocolViolation("an ACCEPT without a protocol version")

@@ -11,7 +11,7 @@ import pytest
 
 from assurance.fallback import Mode
 from kernel.app.task import assembly_runner
-from skills.assembly import AssemblyRunner, PhaseRequest, Sensed, Step
+from skills.assembly import AssemblyRunner, AssemblyStep, PhaseRequest, Sensed
 from skills.contact import ContactState
 from skills.phases import TaskPhase
 from skills.planner import MoveStatus
@@ -38,7 +38,7 @@ def runner() -> AssemblyRunner:
     limits = MotionLimits(kinematics.lower, kinematics.upper, np.full(6, 3.0), np.full(6, 6.0),
                           np.full(6, 60.0))
     runner = assembly_runner(loaded, kinematics, limits, None)
-    runner._enter(Step.APPROACH, 0)  # the policy's approach has begun
+    runner._enter(AssemblyStep.APPROACH, 0)  # the policy's approach has begun
     return runner
 
 

@@ -21,7 +21,7 @@ from assurance.fallback import (
     IRRELEVANT,
     MODES,
     REFUSAL_PRIORITY,
-    Command,
+    FallbackCommand,
     FallbackMachine,
     Mode,
     Owner,
@@ -275,14 +275,14 @@ def test_validated_returns_only_degraded_to_running(mode: Mode) -> None:
 
 
 CARDS = {
-    Mode.RUNNING: (Owner.POLICY, Command.SETPOINT, QueueAction.KEEP, True),
-    Mode.DEGRADED: (Owner.FALLBACK, Command.HOLD, QueueAction.NEW_EPOCH, False),
-    Mode.SAFE_HOLD: (Owner.FALLBACK, Command.HOLD, QueueAction.PURGE, False),
-    Mode.REPLAN_OR_RETREAT: (Owner.PLANNER, Command.RETREAT, QueueAction.PURGE, False),
-    Mode.CONTACT_FALLBACK: (Owner.CONTACT, Command.RETREAT, QueueAction.PURGE, False),
-    Mode.CONTROLLER_STOP: (Owner.SAFETY, Command.STOP, QueueAction.PURGE, False),
-    Mode.HUMAN_RECOVERY: (Owner.HUMAN, Command.HOLD, QueueAction.PURGE, False),
-    Mode.E_STOP: (Owner.SAFETY, Command.STOP, QueueAction.PURGE, False),
+    Mode.RUNNING: (Owner.POLICY, FallbackCommand.SETPOINT, QueueAction.KEEP, True),
+    Mode.DEGRADED: (Owner.FALLBACK, FallbackCommand.HOLD, QueueAction.NEW_EPOCH, False),
+    Mode.SAFE_HOLD: (Owner.FALLBACK, FallbackCommand.HOLD, QueueAction.PURGE, False),
+    Mode.REPLAN_OR_RETREAT: (Owner.PLANNER, FallbackCommand.RETREAT, QueueAction.PURGE, False),
+    Mode.CONTACT_FALLBACK: (Owner.CONTACT, FallbackCommand.RETREAT, QueueAction.PURGE, False),
+    Mode.CONTROLLER_STOP: (Owner.SAFETY, FallbackCommand.STOP, QueueAction.PURGE, False),
+    Mode.HUMAN_RECOVERY: (Owner.HUMAN, FallbackCommand.HOLD, QueueAction.PURGE, False),
+    Mode.E_STOP: (Owner.SAFETY, FallbackCommand.STOP, QueueAction.PURGE, False),
 }
 
 

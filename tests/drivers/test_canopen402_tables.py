@@ -17,7 +17,7 @@ from drivers.canopen402.tables import (
     DEFAULT_EDS,
     PDO_FORMATS,
     STATE_BITS,
-    Command,
+    Controlword,
     DriveState,
     Index,
     decode_state,
@@ -66,11 +66,11 @@ def test_canopen_transition_commands_move_the_emulated_drive(
 def test_fault_reset_needs_a_rising_edge_and_a_cleared_cause() -> None:
     machine = PowerStateMachine()
     machine.fault()
-    assert not machine.on_controlword(Command.FAULT_RESET, fault_cleared=False)
+    assert not machine.on_controlword(Controlword.FAULT_RESET, fault_cleared=False)
     assert machine.state is PowerState.FAULT
-    assert not machine.on_controlword(Command.FAULT_RESET)  # still high: no new edge
-    machine.on_controlword(Command.DISABLE_VOLTAGE)
-    assert machine.on_controlword(Command.FAULT_RESET)
+    assert not machine.on_controlword(Controlword.FAULT_RESET)  # still high: no new edge
+    machine.on_controlword(Controlword.DISABLE_VOLTAGE)
+    assert machine.on_controlword(Controlword.FAULT_RESET)
     assert machine.state is PowerState.SWITCH_ON_DISABLED
 
 
@@ -79,10 +79,10 @@ def test_a_drive_side_quick_stop_holds_until_its_input_is_released() -> None:
     machine.quick_stop_option = 6
     machine.state = PowerState.OPERATION_ENABLED
     machine.quick_stop_input()
-    machine.on_controlword(Command.ENABLE_OPERATION)
+    machine.on_controlword(Controlword.ENABLE_OPERATION)
     assert machine.state is PowerState.QUICK_STOP_ACTIVE
     machine.quick_stop_input(active=False)
-    machine.on_controlword(Command.ENABLE_OPERATION)
+    machine.on_controlword(Controlword.ENABLE_OPERATION)
     assert machine.state is PowerState.OPERATION_ENABLED
 
 
@@ -93,7 +93,7 @@ def test_quick_stop_option_decides_what_follows_standstill(option: int,
     machine = PowerStateMachine()
     machine.quick_stop_option = option
     machine.state = PowerState.OPERATION_ENABLED
-    machine.on_controlword(Command.QUICK_STOP)
+    machine.on_controlword(Controlword.QUICK_STOP)
     machine.after_standstill()
     assert machine.state is after
 

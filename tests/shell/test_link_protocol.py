@@ -10,7 +10,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from assurance.envelope import Chunk, MalformedChunk
-from assurance.handshake import HandshakeDecision, HandshakeOffer, Verdict
+from assurance.handshake import HandshakeDecision, HandshakeOffer, HandshakeVerdict
 from kernel import wire
 from kernel.core.effects import ChunkDecision
 from kernel.core.events import ObservationEvent
@@ -29,7 +29,7 @@ from kernel.wire import ByeReason, ProtocolViolation
 from tests.core.test_handshake import HELLO, OFFER
 
 OFFERED = msgspec.convert(OFFER, HandshakeOffer)
-ACCEPT = HandshakeDecision(decision=Verdict.ACCEPT, fingerprint="f" * 32, protocol=2)
+ACCEPT = HandshakeDecision(decision=HandshakeVerdict.ACCEPT, fingerprint="f" * 32, protocol=2)
 
 
 def _protocol() -> WardenProtocol:
@@ -80,7 +80,7 @@ def test_the_cores_acceptance_goes_back_as_a_decision_and_opens_the_session() ->
 
 def test_a_refusal_goes_back_and_ends_the_connection() -> None:
     protocol = _protocol()
-    refused = HandshakeDecision(decision=Verdict.REJECT, reasons=("SCHEMA_MISMATCH",))
+    refused = HandshakeDecision(decision=HandshakeVerdict.REJECT, reasons=("SCHEMA_MISMATCH",))
     outputs = protocol.on_decision(refused, 0)
     assert _sent(outputs) == [wire.Decision(decision=refused, queue_epoch=0)]
     assert outputs[-1] == Ended(ByeReason.HANDSHAKE_REJECTED, "SCHEMA_MISMATCH")

@@ -55,7 +55,7 @@ OFFER = st.builds(
     reason_codes=_optional(TEXTS),
 )
 DECISION = st.builds(
-    peer_hs.HandshakeDecision, decision=st.sampled_from(peer_hs.Verdict),
+    peer_hs.HandshakeDecision, decision=st.sampled_from(peer_hs.HandshakeVerdict),
     fingerprint=_optional(TEXT), reasons=TEXTS, protocol=_optional(INT64),
 )
 
