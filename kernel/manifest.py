@@ -18,10 +18,15 @@ from pathlib import Path
 from typing import Any
 
 from assurance.clock import ms_to_ns, ns_to_ms
-from drivers import registry
-from drivers.settings import SettingsError
 from kernel.core.config import CoreConfig
-from kernel.manifest_tables import driver_table, parse_toml, run_name, safety_table, table
+from kernel.manifest_tables import (
+    decode_driver_settings,
+    driver_table,
+    parse_toml,
+    run_name,
+    safety_table,
+    table,
+)
 from kernel.safety.settings import SafetySettings
 from kernel.scenario.config import build_config, check_keys
 from kernel.scenario.document import check_document, decoded, read_bytes
@@ -124,7 +129,7 @@ def _load(path: Path, raw: str) -> Manifest:
             "missing required key 'state_timeout_ms': a real device needs the state watchdog "
             "(the arm stops when its state samples stop)")
     emulator = _read(EmulatorSettings, doc, "emulator", where)
-    driver_settings = _driver_settings(driver_name, driver, emulator, where)
+    driver_settings = decode_driver_settings(driver_name, driver, emulator.launch, where)
     policy = _policy(_read(PolicySettings, doc, "policy", where), where.at("policy"))
     _check_link_loss_first(core, policy, where)
     return Manifest(
@@ -138,18 +143,6 @@ def _load(path: Path, raw: str) -> Manifest:
         trial=_trial(doc, where),
     )
 
-
-def _driver_settings(name: str, table: dict[str, Any], emulator: EmulatorSettings,
-                     where: Where) -> Any:
-    """The driver's own settings type, from the registry; with ``[emulator] launch`` the run
-    fills in the device's address from the emulator, so the table may leave it out."""
-    try:
-        return registry.settings_for(name, table, f"{where.file}: driver",
-                                     address_filled_in=emulator.launch)
-    except registry.UnknownDriver as error:
-        raise where.at("driver").at("name").error(str(error)) from None
-    except SettingsError as error:
-        raise ManifestError(str(error)) from None
 
 
 def _check_link_loss_first(core: CoreConfig, policy: PolicySettings, where: Where) -> None:

@@ -21,6 +21,7 @@ from typing import Any
 
 import msgspec
 
+from drivers import registry
 from drivers.settings import SettingsError, settings_from_mapping
 from kernel.safety.settings import SafetySettings, check_against_period
 from kernel.scenario import bounds
@@ -249,3 +250,17 @@ def run_name(doc: Mapping[str, Any], path: Path, where: Where) -> str:
     if not isinstance(name, str) or not _NAME.fullmatch(name):
         raise where.at("name").error(f"{shown(name)} is not a safe run name ({_NAME_RULE})")
     return name
+
+
+def decode_driver_settings(name: str, driver: Mapping[str, Any], emulator_launch: bool,
+                    where: Where) -> Any:
+    """``[driver]`` (without ``name``) decoded into the settings type the named driver declares,
+    for warden's loader and the monitor's view alike; with ``[emulator] launch`` the run fills in
+    the device's address from the emulator, so the table may leave it out."""
+    try:
+        return registry.settings_for(name, driver, f"{where.file}: driver",
+                                     address_filled_in=emulator_launch)
+    except registry.UnknownDriver as error:
+        raise where.at("driver").at("name").error(str(error)) from None
+    except SettingsError as error:
+        raise ScenarioError(str(error)) from None

@@ -18,13 +18,12 @@ from typing import Any
 
 import msgspec
 
-from drivers import registry
-from drivers.settings import SettingsError
 from kernel.manifest_tables import (
     ROBOT_KEYS,
     EmulatorSettings,
     RobotLimits,
     control_period_ms,
+    decode_driver_settings,
     driver_table,
     parse_toml,
     robot_limits_table,
@@ -92,21 +91,10 @@ def _view(path: Path, raw: str, digest: str) -> MonitorView:
         name=run_name(doc, path, where), path=path, digest=digest,
         limits=robot_limits_table(robot, where.at("robot")),
         safety=safety_table(doc, where, round(period_ms * 1e6)),  # as assurance.clock rounds
-        driver_name=driver_name, driver_settings=_driver(driver_name, driver, emulator, where),
+        driver_name=driver_name,
+        driver_settings=decode_driver_settings(driver_name, driver, emulator.launch, where),
         emulator=emulator)
 
-
-def _driver(name: str, driver: Mapping[str, Any], emulator: EmulatorSettings,
-            where: Where) -> Any:
-    """``[driver]`` decoded into the settings type the named driver declares, as warden's own
-    loader decodes it (one definition per key: the driver's)."""
-    try:
-        return registry.settings_for(name, driver, f"{where.file}: driver",
-                                     address_filled_in=emulator.launch)
-    except registry.UnknownDriver as error:
-        raise where.at("driver").at("name").error(str(error)) from None
-    except SettingsError as error:
-        raise ViewError(str(error)) from None
 
 
 def _emulator(doc: Mapping[str, Any], where: Where) -> EmulatorSettings:
