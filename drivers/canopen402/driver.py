@@ -12,7 +12,9 @@ read: the latest TPDOs, converted to SI units.
 HOLD keeps the targets (the last setpoint, or the actual positions taken at activation); only
 after a quick stop, whose ramp left the drives short of or past them, are they re-taken from the
 actual positions: never a fresh reading otherwise (a glitched one is a jump a CSP drive follows
-at once). deactivate: the same hold, then disable.
+at once). STOP is a quick stop (QUICK STOP ACTIVE); the next POSITION or HOLD (the core's first
+command after an accepted recovery) sets the targets where the stop left the drives and enables
+them again, then goes out as usual. deactivate: the same hold, then disable.
 inspect (``warden check``): each drive's objects against the settings, reads only.
 Every step that concerns "every drive" includes the gripper drive, so its faults surface exactly
 as a joint's do; only the units and the HOLD/STOP rules differ.
@@ -202,7 +204,7 @@ class CiA402Driver(Driver):
             await self._arm_watchdog()  # a loop without before_first_tick: see watchdog.py
         self._watchdog.beat()
         if command.kind is CommandKind.POSITION:
-            return self._write_position(command)
+            return await self._write_position(command)
         if command.kind is CommandKind.HOLD:
             return await self.hold()
         if command.kind is CommandKind.STOP:
@@ -215,10 +217,7 @@ class CiA402Driver(Driver):
         self._watchdog.beat()
         q = self._held_targets()
         self._keep_gripper()
-        if self._active and self._stop_requested:  # leave QUICK STOP ACTIVE (transition 16)
-            await self._blocking("re-enable after quick stop", self._for_each, walk_to,
-                                 DriveState.OPERATION_ENABLED, self.settings)
-            self._stop_requested = False
+        await self._leave_quick_stop()
         if self._active:
             self._tick()
         return Applied(kind=CommandKind.HOLD, t_mono_ns=time.monotonic_ns(), q=q)
@@ -262,15 +261,17 @@ class CiA402Driver(Driver):
                                  self._watchdog.entry)
             self._watchdog.armed = True
 
-    def _write_position(self, command: Command) -> Applied:
+    async def _write_position(self, command: Command) -> Applied:
         control = self._require_control()
-        if self._stop_requested:
-            return self._refuse(command.kind, ReasonCode.CONTROLLER_REJECT)
         if len(command.q) != control.dof:
             return self._refuse(command.kind, ReasonCode.MALFORMED)
         if not (all(math.isfinite(v) for v in command.q) and gripper.valid_opening(
                 command.gripper)):
             return self._refuse(command.kind, ReasonCode.NONFINITE)
+        if self._stop_requested:  # the core resumes (an operator accepted recovery)
+            self._held_targets()
+            self._keep_gripper()
+            await self._leave_quick_stop()
         counts = [scale.to_counts(min(max(q, lo), hi)) for scale, q, lo, hi in zip(
             self._scales, command.q, control.q_lower, control.q_upper, strict=True)]
         for target, value in zip(self._targets, counts, strict=True):
@@ -289,6 +290,18 @@ class CiA402Driver(Driver):
         self._tick()
         return Applied(kind=CommandKind.STOP, t_mono_ns=time.monotonic_ns(),
                        q=self._sample().q)
+
+    async def _leave_quick_stop(self) -> None:
+        """QUICK STOP ACTIVE → OPERATION ENABLED (transition 16), after our own quick stop.
+
+        The targets must already be where the stop left the drives (:meth:`_held_targets`):
+        an enabled CSP drive follows its target at once, and the one it had before the stop
+        is where the ramp did not take it."""
+        if not (self._active and self._stop_requested):
+            return
+        await self._blocking("re-enable after quick stop", self._for_each, walk_to,
+                             DriveState.OPERATION_ENABLED, self.settings)
+        self._stop_requested = False
 
     def _held_targets(self) -> tuple[float, ...]:
         """The targets a hold keeps, in radians: as they are, unless a quick stop moved the
