@@ -105,6 +105,9 @@ class ControlConfig:
     q_lower: tuple[float, ...]
     q_upper: tuple[float, ...]
     v_max: tuple[float, ...]
+    a_max: tuple[float, ...] = ()
+    """Acceleration limits (rad/s²); empty: not given (a driver then judges its readings'
+    plausibility by the velocity limits alone, :mod:`drivers.plausible`)."""
 
 
 class Driver(abc.ABC):

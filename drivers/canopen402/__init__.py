@@ -6,9 +6,13 @@ between calls (heartbeats, EMCY, TPDOs); ``watchdog`` the drives' watchdog on wa
 heartbeat, each drive's consumer of it and its reaction to a lost connection); ``gripper`` the
 gripper drive; ``link`` the only code that builds canopen objects; ``tables``, ``units`` and
 ``settings`` CiA 301/402 as data, unit conversions and the manifest table.
+
+The driver is imported from ``drivers.canopen402.driver`` (as the registry names it), not from
+here: the safety monitor imports this package's bus and table modules, and importing the
+package must not load the driver and what it relies on of warden's core (the plausibility
+check its readings go through, ``drivers.plausible``).
 """
 
-from drivers.canopen402.driver import CiA402Driver
 from drivers.canopen402.settings import CiA402Settings
 
-__all__ = ["CiA402Driver", "CiA402Settings"]
+__all__ = ["CiA402Settings"]

@@ -11,10 +11,11 @@ warden's heartbeat is armed, which every write then feeds (:mod:`drivers.canopen
 read: the latest TPDOs, converted to SI units.
 HOLD keeps the targets (the last setpoint, or the actual positions taken at activation); only
 after a quick stop, whose ramp left the drives short of or past them, are they re-taken from the
-actual positions: never a fresh reading otherwise (a glitched one is a jump a CSP drive follows
-at once). STOP is a quick stop (QUICK STOP ACTIVE); the next POSITION or HOLD (the core's first
-command after an accepted recovery) sets the targets where the stop left the drives and enables
-them again, then goes out as usual. deactivate: the same hold, then disable.
+actual positions, from a plausible reading only (``drivers.plausible``): never a fresh reading
+otherwise (a glitched one is a jump a CSP drive follows at once). STOP is a quick stop (QUICK
+STOP ACTIVE); the next POSITION or HOLD (the core's first command after an accepted recovery)
+sets the targets where the stop left the drives and enables them again, then goes out as usual.
+deactivate: the same hold, then disable.
 inspect (``warden check``): each drive's objects against the settings, reads only.
 Every step that concerns "every drive" includes the gripper drive, so its faults surface exactly
 as a joint's do; only the units and the HOLD/STOP rules differ.
@@ -62,6 +63,7 @@ from drivers.canopen402.settings import CiA402Settings
 from drivers.canopen402.tables import Controlword, DriveState, Index
 from drivers.canopen402.watchdog import DriveWatchdog
 from drivers.device_thread import DeviceThread
+from drivers.plausible import LastPlausible
 from drivers.readiness import Finding
 
 T = TypeVar("T")
@@ -106,6 +108,9 @@ class CiA402Driver(Driver):
         self._closed = False
         self._seq = 0
         self._watchdog = DriveWatchdog(settings)
+        self._readings = LastPlausible()
+        """Every joint reading, judged as the core judges its samples: where a quick stop
+        left the drives is taken from a plausible one only."""
 
     @classmethod
     def from_settings(cls, settings: CiA402Settings, name: str | None = None) -> CiA402Driver:
@@ -151,6 +156,7 @@ class CiA402Driver(Driver):
         except ValueError as error:
             raise DriverInitError(self.name, str(error)) from error
         self._control = control
+        self._readings.configure(control)
         self._rated_torque = await self._blocking(
             "PDO and parameter setup", parameters.configure_drives, self._require_link(),
             self.settings, self._scales, control)
@@ -312,14 +318,14 @@ class CiA402Driver(Driver):
                      for scale, target in zip(self._scales, self._targets, strict=True))
 
     def _hold_targets(self) -> tuple[float, ...]:
-        """Set every joint's target to its actual position; returns it in radians."""
-        q = []
-        for node, scale, target in zip(self._require_link().joints, self._scales, self._targets,
-                                       strict=True):
-            counts = node.tpdo_values[Index.POSITION_ACTUAL]
-            target.raw = counts
-            q.append(scale.to_rad(counts))
-        return tuple(q)
+        """Set every joint's target to its actual position, by a plausible reading (else the
+        last plausible one: a glitched reading made the targets is a jump the drives follow);
+        returns it in radians."""
+        q, qd, _ = joint_readings(self._require_link().joints, self._scales, self._rated_torque)
+        q = self._readings.believed(time.monotonic_ns(), q, qd) or q
+        for scale, target, value in zip(self._scales, self._targets, q, strict=True):
+            target.raw = scale.to_counts(value)
+        return q
 
     def _keep_gripper(self) -> None:
         if self._gripper is not None:
@@ -335,6 +341,7 @@ class CiA402Driver(Driver):
     def _sample(self) -> StateSample:
         q, qd, effort = joint_readings(self._require_link().joints, self._scales,
                                        self._rated_torque)
+        self._readings.judge(time.monotonic_ns(), q, qd)
         self._seq += 1
         opening = self._gripper.opening() if self._gripper is not None else None
         return StateSample(seq=self._seq, t_mono_ns=time.monotonic_ns(), source=self.name,

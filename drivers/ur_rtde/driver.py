@@ -3,7 +3,8 @@
 Positions stream as servoJ at the control rate, velocities as speedJ; STOP is stopJ (once: STOP
 repeated while the arm stays stopped only kicks the watchdog), HOLD is
 servoJ to the last position this driver commanded (the measured one only when there is none:
-after activation, a velocity or a stop; stopJ while inactive). Every read takes one snapshot of the
+after activation, a velocity or a stop, and only a plausible one, ``drivers.plausible``; stopJ
+while inactive). Every read takes one snapshot of the
 receive interface and maps the controller's own words: safety bits (e-stop → E_STOP,
 protective/safeguard stop → CONTROLLER_FAULT), robot mode and runtime state while streaming
 (→ CONTROLLER_FAULT), a timestamp that stopped advancing (→ WATCHDOG) and a lost link
@@ -50,6 +51,7 @@ from drivers.base import (
     StateSample,
 )
 from drivers.device_thread import DeviceThread
+from drivers.plausible import LastPlausible
 from drivers.readiness import Finding
 from drivers.ur_rtde import inspection, setpoints, tables
 from drivers.ur_rtde import settings as settings_module
@@ -99,6 +101,9 @@ class URRTDEDriver(Driver):
         """The position the arm was last servoed to since activation (setpoint or hold), where
         a HOLD holds: a reading may be glitched, and servoing to it would move the arm there.
         None after a velocity or a stop (the arm ended somewhere no setpoint said)."""
+        self._readings = LastPlausible()
+        """Every reading, judged as the core judges its samples: with nothing commanded (after
+        a stop) a hold holds at a plausible one only."""
 
     @property
     def controller_time_s(self) -> float | None:
@@ -137,6 +142,7 @@ class URRTDEDriver(Driver):
                 f"the RTDE period of the arm at {host} ({self.settings.frequency_hz} Hz): "
                 "raise frequency_hz or lower the control rate")
         self._control = control
+        self._readings.configure(control)
         self._watchdog_hz = self.settings.watchdog_frequency_hz(control.period_ns * 1e-9)
 
     async def activate(self) -> None:
@@ -159,6 +165,7 @@ class URRTDEDriver(Driver):
         if self._stop_under_way() and self._last is not None:
             return self._last  # the device thread is busy stopping the arm: no new sample
         snapshot = await self._read_checked(streaming=self._active)
+        self._readings.judge(snapshot.t_mono_ns, snapshot.q, snapshot.qd)
         self._seq += 1
         self._last = StateSample(
             seq=self._seq, t_mono_ns=snapshot.t_mono_ns, source=self.name, q=snapshot.q,
@@ -208,7 +215,8 @@ class URRTDEDriver(Driver):
         return await self._refused_and_kicked(command.kind, ReasonCode.CONTROLLER_MODE_MISMATCH)
 
     async def hold(self) -> Applied:
-        """Servo to the last commanded position while streaming (the measured one if none);
+        """Servo to the last commanded position while streaming (the measured one if none,
+        after activation or a stop, and only if plausible: else the last plausible reading);
         stopJ when not streaming.
 
         Never to a fresh reading once a position was commanded: a glitched one (an encoder
@@ -217,7 +225,9 @@ class URRTDEDriver(Driver):
         await self._stop_finished()
         link = self._link_or_raise()
         self._stopped = False
-        measured = (await self._read_checked(streaming=self._active)).q  # and its status words
+        snapshot = await self._read_checked(streaming=self._active)  # and its status words
+        measured = self._readings.believed(snapshot.t_mono_ns, snapshot.q, snapshot.qd)
+        measured = measured or snapshot.q
         if self._active:
             q = self._commanded if self._commanded is not None else measured
             return await self._servo(CommandKind.HOLD, link, q)
