@@ -30,7 +30,8 @@ import numpy as np
 import uvloop
 
 from drivers.base import Command, CommandKind, DriverError
-from drivers.canopen402 import CiA402Driver, CiA402Settings
+from drivers.canopen402 import CiA402Settings
+from drivers.canopen402.driver import CiA402Driver
 from drivers.lifecycle import ManagedDriver
 from stubs.cia402_drive import DriveEmulator
 from stubs.cia402_drive.launch import unique_udp_bus

@@ -42,7 +42,12 @@ class CommandKind(StrEnum):
     HOLD = "hold"
     """Hold the joints where they are now, with the device's own position loop."""
     STOP = "stop"
-    """Decelerate to standstill and stop streaming (stopJ, quick stop, torque kept on)."""
+    """Decelerate to standstill and stop streaming (stopJ, quick stop, torque kept on).
+    Any later POSITION or HOLD resumes from where the stop left the arm: the core sends one
+    only once an operator accepted recovery, and starts it there (its interpolator restarts
+    from the measured position every STOP tick). A device that must be enabled again first
+    (a CiA 402 drive in QUICK STOP ACTIVE) is enabled by the driver, its target first set to
+    where the arm rests, never refused: the core would only stop the arm again."""
     IMPEDANCE = "impedance"
     """Compliant joint-space target with per-joint stiffness and damping (the contact owner).
     A driver that cannot do it refuses the command (CONTROLLER_MODE_MISMATCH)."""
@@ -100,6 +105,9 @@ class ControlConfig:
     q_lower: tuple[float, ...]
     q_upper: tuple[float, ...]
     v_max: tuple[float, ...]
+    a_max: tuple[float, ...] = ()
+    """Acceleration limits (rad/s²); empty: not given (a driver then judges its readings'
+    plausibility by the velocity limits alone, :mod:`drivers.plausible`)."""
 
 
 class Driver(abc.ABC):

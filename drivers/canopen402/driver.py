@@ -9,10 +9,10 @@ target := actual, then up to OPERATION ENABLED. write: targets into the RPDOs, t
 SYNC; right before the loop's first tick (or at the first setpoint) every drive's watchdog on
 warden's heartbeat is armed, which every write then feeds (:mod:`drivers.canopen402.watchdog`).
 read: the latest TPDOs, converted to SI units.
-HOLD keeps the targets (the last setpoint, or the actual positions taken at activation); only
-after a quick stop, whose ramp left the drives short of or past them, are they re-taken from the
-actual positions: never a fresh reading otherwise (a glitched one is a jump a CSP drive follows
-at once). deactivate: the same hold, then disable.
+HOLD keeps the targets (where each command puts them: :mod:`drivers.canopen402.targets`). STOP
+is a quick stop (QUICK STOP ACTIVE); the next POSITION or HOLD (the core's first command after
+an accepted recovery) sets the targets where the stop left the drives and enables them again,
+then goes out as usual. deactivate: the same hold, then disable.
 inspect (``warden check``): each drive's objects against the settings, reads only.
 Every step that concerns "every drive" includes the gripper drive, so its faults surface exactly
 as a joint's do; only the units and the HOLD/STOP rules differ.
@@ -31,7 +31,6 @@ from collections.abc import Callable, Mapping
 from typing import ClassVar, TypeVar
 
 import can
-from canopen.sdo import SdoAbortedError, SdoCommunicationError
 
 from assurance.reasons import ReasonCode
 from drivers.base import (
@@ -40,7 +39,6 @@ from drivers.base import (
     CommandKind,
     ControlConfig,
     Driver,
-    DriverError,
     DriverInitError,
     DriverIOError,
     DriverTimeout,
@@ -49,15 +47,17 @@ from drivers.base import (
 )
 from drivers.canopen402 import bringup, gripper, inspection, parameters, watchdog
 from drivers.canopen402 import settings as settings_module
-from drivers.canopen402._sdk import Node402, PdoVariable
+from drivers.canopen402._sdk import Node402
 from drivers.canopen402.cycle import BusCycle
-from drivers.canopen402.drive_state import FAULTY, check_running, current_state, walk_to
+from drivers.canopen402.drive_state import FAULTY, current_state, walk_to
 from drivers.canopen402.gripper import Gripper
 from drivers.canopen402.health import HealthMonitor
 from drivers.canopen402.link import Link, build_link
 from drivers.canopen402.process_data import joint_readings, start_bus_cycle
 from drivers.canopen402.settings import CiA402Settings
-from drivers.canopen402.tables import Controlword, DriveState, Index
+from drivers.canopen402.supervision import check_drives, named_step
+from drivers.canopen402.tables import Controlword, DriveState
+from drivers.canopen402.targets import Targets
 from drivers.canopen402.watchdog import DriveWatchdog
 from drivers.device_thread import DeviceThread
 from drivers.readiness import Finding
@@ -92,7 +92,7 @@ class CiA402Driver(Driver):
         self._cycle: BusCycle | None = None
         self._control: ControlConfig | None = None
         self._rated_torque: tuple[int, ...] = ()
-        self._targets: tuple[PdoVariable, ...] = ()
+        self._targets = Targets(self._scales)
         self._gripper: Gripper | None = None
         self._active = False
         self._powered = False
@@ -149,6 +149,7 @@ class CiA402Driver(Driver):
         except ValueError as error:
             raise DriverInitError(self.name, str(error)) from error
         self._control = control
+        self._targets.readings.configure(control)
         self._rated_torque = await self._blocking(
             "PDO and parameter setup", parameters.configure_drives, self._require_link(),
             self.settings, self._scales, control)
@@ -162,14 +163,14 @@ class CiA402Driver(Driver):
 
     def _start_cycle(self, control: ControlConfig) -> None:
         link = self._require_link()
-        self._targets = tuple(node.rpdo[1][Index.TARGET_POSITION] for node in link.joints)
+        self._targets.bind(link.joints)
         if link.gripper is not None:
             self._gripper = Gripper(link.gripper, self.settings.gripper_scale())
         self._cycle = start_bus_cycle(link, control.period_ns * 1e-9, self._health.on_tpdo)
 
     async def activate(self) -> None:
         self._check()
-        self._hold_targets()  # a CSP drive follows its target at once: start from where it is
+        self._hold_here()  # a CSP drive follows its target at once: start from where it is
         if self._gripper is not None:
             self._gripper.start_here()
         self._stop_requested = self._commanded = False
@@ -202,7 +203,7 @@ class CiA402Driver(Driver):
             await self._arm_watchdog()  # a loop without before_first_tick: see watchdog.py
         self._watchdog.beat()
         if command.kind is CommandKind.POSITION:
-            return self._write_position(command)
+            return await self._write_position(command)
         if command.kind is CommandKind.HOLD:
             return await self.hold()
         if command.kind is CommandKind.STOP:
@@ -215,10 +216,7 @@ class CiA402Driver(Driver):
         self._watchdog.beat()
         q = self._held_targets()
         self._keep_gripper()
-        if self._active and self._stop_requested:  # leave QUICK STOP ACTIVE (transition 16)
-            await self._blocking("re-enable after quick stop", self._for_each, walk_to,
-                                 DriveState.OPERATION_ENABLED, self.settings)
-            self._stop_requested = False
+        await self._leave_quick_stop()
         if self._active:
             self._tick()
         return Applied(kind=CommandKind.HOLD, t_mono_ns=time.monotonic_ns(), q=q)
@@ -262,23 +260,21 @@ class CiA402Driver(Driver):
                                  self._watchdog.entry)
             self._watchdog.armed = True
 
-    def _write_position(self, command: Command) -> Applied:
+    async def _write_position(self, command: Command) -> Applied:
         control = self._require_control()
-        if self._stop_requested:
-            return self._refuse(command.kind, ReasonCode.CONTROLLER_REJECT)
         if len(command.q) != control.dof:
             return self._refuse(command.kind, ReasonCode.MALFORMED)
         if not (all(math.isfinite(v) for v in command.q) and gripper.valid_opening(
                 command.gripper)):
             return self._refuse(command.kind, ReasonCode.NONFINITE)
-        counts = [scale.to_counts(min(max(q, lo), hi)) for scale, q, lo, hi in zip(
-            self._scales, command.q, control.q_lower, control.q_upper, strict=True)]
-        for target, value in zip(self._targets, counts, strict=True):
-            target.raw = value
+        if self._stop_requested:  # the core resumes (an operator accepted recovery)
+            self._held_targets()
+            self._keep_gripper()
+            await self._leave_quick_stop()
+        applied = self._targets.command(command.q, control)
         if self._gripper is not None:
             self._gripper.command(command.gripper)
         self._tick()
-        applied = tuple(scale.to_rad(c) for scale, c in zip(self._scales, counts, strict=True))
         return Applied(kind=CommandKind.POSITION, t_mono_ns=time.monotonic_ns(), q=applied)
 
     def _quick_stop(self) -> Applied:
@@ -290,23 +286,25 @@ class CiA402Driver(Driver):
         return Applied(kind=CommandKind.STOP, t_mono_ns=time.monotonic_ns(),
                        q=self._sample().q)
 
+    async def _leave_quick_stop(self) -> None:
+        """QUICK STOP ACTIVE → OPERATION ENABLED (transition 16), after our own quick stop.
+
+        The targets must already be where the stop left the drives (:meth:`_held_targets`):
+        an enabled CSP drive follows its target at once, and the one it had before the stop
+        is where the ramp did not take it."""
+        if not (self._active and self._stop_requested):
+            return
+        await self._blocking("re-enable after quick stop", self._for_each, walk_to,
+                             DriveState.OPERATION_ENABLED, self.settings)
+        self._stop_requested = False
+
     def _held_targets(self) -> tuple[float, ...]:
         """The targets a hold keeps, in radians: as they are, unless a quick stop moved the
-        drives away from them (then where the stop left them, :meth:`_hold_targets`)."""
-        if self._stop_requested:
-            return self._hold_targets()
-        return tuple(scale.to_rad(target.raw)
-                     for scale, target in zip(self._scales, self._targets, strict=True))
+        drives away from them (then where the stop left them, :meth:`_hold_here`)."""
+        return self._hold_here() if self._stop_requested else self._targets.kept()
 
-    def _hold_targets(self) -> tuple[float, ...]:
-        """Set every joint's target to its actual position; returns it in radians."""
-        q = []
-        for node, scale, target in zip(self._require_link().joints, self._scales, self._targets,
-                                       strict=True):
-            counts = node.tpdo_values[Index.POSITION_ACTUAL]
-            target.raw = counts
-            q.append(scale.to_rad(counts))
-        return tuple(q)
+    def _hold_here(self) -> tuple[float, ...]:
+        return self._targets.here(self._require_link().joints, self._rated_torque)
 
     def _keep_gripper(self) -> None:
         if self._gripper is not None:
@@ -322,6 +320,7 @@ class CiA402Driver(Driver):
     def _sample(self) -> StateSample:
         q, qd, effort = joint_readings(self._require_link().joints, self._scales,
                                        self._rated_torque)
+        self._targets.readings.judge(time.monotonic_ns(), q, qd)
         self._seq += 1
         opening = self._gripper.opening() if self._gripper is not None else None
         return StateSample(seq=self._seq, t_mono_ns=time.monotonic_ns(), source=self.name,
@@ -348,20 +347,8 @@ class CiA402Driver(Driver):
 
     def _check(self) -> None:
         """Raise what the drives reported since the last call (EMCY, silence, state)."""
-        link = self._require_link()
-        try:
-            self._health.check(expect_pdos=self._cycle is not None)
-        except (DriverIOError, DriverTimeout):
-            if not link.catch_up():  # silence is only silence once what arrived has been read
-                raise
-            self._health.check(expect_pdos=self._cycle is not None)
-        if self._cycle is None:
-            return
-        if self._cycle.error is not None:
-            raise DriverIOError(self.name, f"the bus cycle could not send on "
-                                f"{self.settings.describe_bus()}: {self._cycle.error}")
-        for node in self._nodes():
-            check_running(node, self.settings, self._active, self._stop_requested)
+        check_drives(self._health, self._require_link(), self._cycle, self.settings,
+                     self._active, self._stop_requested)
 
     # -- plumbing ------------------------------------------------------------------------------
 
@@ -369,15 +356,9 @@ class CiA402Driver(Driver):
         """Run a blocking step on the device thread, naming the step in any error."""
         if self._thread is None:
             raise NotConnected(self.name, f"{label}: not connected")
-        try:
+        with named_step(self.name, label):
             async with self._watchdog.kept_up():
                 return await self._thread.run(self.settings.call_timeout_s, fn, *args)
-        except DriverError:
-            raise
-        except (SdoCommunicationError, SdoAbortedError) as error:
-            raise DriverInitError(self.name, f"{label}: SDO failed: {error}") from error
-        except can.CanError as error:
-            raise DriverIOError(self.name, f"{label}: {error}") from error
 
     def _for_each(self, step: Callable[..., None], *args: object) -> None:
         for node in self._nodes():

@@ -123,13 +123,6 @@ class DynamixelBus(BusTransactions):
                 self._write_item(self.settings.gripper_id, tables.GOAL_CURRENT,
                                  self.settings.gripper_current_units)
 
-    def hold_here(self) -> RawState:
-        """Make the present position every joint's goal (a stop); returns the state it read.
-        The gripper's goal stays as it is (see :meth:`hold_at_goals`)."""
-        state = self.read_state()
-        self.write_goals(state.position)
-        return state
-
     def hold_at_goals(self) -> tuple[int, ...]:
         """Write every joint's last goal again (the present position only if none was
         written since torque on); returns the goals held.

@@ -22,7 +22,8 @@ thread-safe and its calls block (and spin) while they wait for a reply.
   status packet turns into a DeviceFault that names the hardware error bits.
 - write: one sync write of goal positions, clipped to the joint limits and the one-turn range.
   HOLD writes the joints' last goals again, never a reading (a glitched one would be a goal
-  the arm moves to); STOP makes the present position the goal once, then holds it.
+  the arm moves to); STOP makes the present position the goal once (from a plausible reading
+  only, else the last plausible one: ``drivers.plausible``), then holds it.
 
 With ``gripper_id`` one more servo on the bus is the gripper: bring-up finds and configures it
 with the joints; a POSITION command's ``gripper`` opening (m, clipped to [0, 0.085]) goes out in
@@ -59,6 +60,7 @@ from drivers.dynamixel.bus import DynamixelBus, RawState
 from drivers.dynamixel.settings import GRIPPER_MAX_OPENING_M, DynamixelSettings
 from drivers.dynamixel.tables import POSITION_MODE_TICKS
 from drivers.dynamixel.units import GripperCalibration, JointCalibration
+from drivers.plausible import LastPlausible
 from drivers.readiness import Finding
 
 T = TypeVar("T")
@@ -100,6 +102,9 @@ class DynamixelDriver(Driver):
         self._thread: DeviceThread | None = None
         self._bus: DynamixelBus | None = None
         self._seq = 0
+        self._readings = LastPlausible()
+        """Every reading, judged as the core judges its samples: a STOP's goal is taken from a
+        plausible one only."""
 
     @property
     def bus(self) -> DynamixelBus | None:
@@ -137,6 +142,7 @@ class DynamixelDriver(Driver):
         self._lower = tuple(map(max, control.q_lower, self._tick_lower))
         self._upper = tuple(map(min, control.q_upper, self._tick_upper))
         self._control = control
+        self._readings.configure(control)
 
     async def activate(self) -> None:
         bus = self._connected_bus()
@@ -153,19 +159,29 @@ class DynamixelDriver(Driver):
         if command.kind is CommandKind.POSITION:
             return await self._write_position(command)
         if command.kind is CommandKind.STOP and not self._stopped:
-            # A stop ends motion now: goal := where the servo is, read once (a far goal is
-            # not followed on); repeated, as every tick of E_STOP sends it, the goal stays
-            # (re-read each time, a glitched reading would be a goal the arm moves to).
-            self._written = self._stopped = True
-            raw = await self._run(self._connected_bus().hold_here)
-            return Applied(kind=CommandKind.STOP, t_mono_ns=time.monotonic_ns(),
-                           q=self.calibration.q_from_ticks(raw.position))
+            return await self._stop_here()
         if command.kind in (CommandKind.HOLD, CommandKind.STOP):
             # Its gripper opening is ignored on purpose: a hold must never open the gripper.
             applied = await self.hold()
             return msgspec.structs.replace(applied, kind=command.kind)
         # The servos run in position mode; velocity streaming would need Operating Mode 1.
         return _refused(command.kind, ReasonCode.CONTROLLER_MODE_MISMATCH)
+
+    async def _stop_here(self) -> Applied:
+        """A stop ends motion now: goal := where the servo is, read once (a far goal is not
+        followed on) and believed only if plausible, else the last plausible reading: a
+        glitched one is a goal the arm moves to. Repeated, as every tick of E_STOP sends it,
+        the goal stays (re-read each time, the arm would chase a glitch)."""
+        self._written = self._stopped = True
+        bus = self._connected_bus()
+        raw = await self._run(bus.read_state)
+        q = self.calibration.q_from_ticks(raw.position)
+        qd = self.calibration.qd_from_units(raw.velocity)
+        here = self._readings.believed(time.monotonic_ns(), q, qd)
+        goals = raw.position if here is None or here == q else self._ticks_in_range(here)
+        await self._run(bus.write_goals, goals)
+        return Applied(kind=CommandKind.STOP, t_mono_ns=time.monotonic_ns(),
+                       q=self.calibration.q_from_ticks(goals))
 
     async def hold(self) -> Applied:
         self._written = True
@@ -236,10 +252,11 @@ class DynamixelDriver(Driver):
 
     def _sample(self, raw: RawState) -> StateSample:
         self._seq += 1
+        t, q = time.monotonic_ns(), self.calibration.q_from_ticks(raw.position)
+        qd = self.calibration.qd_from_units(raw.velocity)
+        self._readings.judge(t, q, qd)
         return StateSample(
-            seq=self._seq, t_mono_ns=time.monotonic_ns(), source=self.name,
-            q=self.calibration.q_from_ticks(raw.position),
-            qd=self.calibration.qd_from_units(raw.velocity),
+            seq=self._seq, t_mono_ns=t, source=self.name, q=q, qd=qd,
             effort=self.calibration.effort_from_units(raw.current),
             gripper=None if raw.gripper is None else self.gripper.opening_from_ticks(raw.gripper),
         )

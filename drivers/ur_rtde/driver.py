@@ -3,7 +3,8 @@
 Positions stream as servoJ at the control rate, velocities as speedJ; STOP is stopJ (once: STOP
 repeated while the arm stays stopped only kicks the watchdog), HOLD is
 servoJ to the last position this driver commanded (the measured one only when there is none:
-after activation, a velocity or a stop; stopJ while inactive). Every read takes one snapshot of the
+after activation, a velocity or a stop, and only a plausible one, ``drivers.plausible``; stopJ
+while inactive). Every read takes one snapshot of the
 receive interface and maps the controller's own words: safety bits (e-stop → E_STOP,
 protective/safeguard stop → CONTROLLER_FAULT), robot mode and runtime state while streaming
 (→ CONTROLLER_FAULT), a timestamp that stopped advancing (→ WATCHDOG) and a lost link
@@ -50,12 +51,14 @@ from drivers.base import (
     StateSample,
 )
 from drivers.device_thread import DeviceThread
+from drivers.plausible import LastPlausible
 from drivers.readiness import Finding
 from drivers.ur_rtde import inspection, setpoints, tables
 from drivers.ur_rtde import settings as settings_module
 from drivers.ur_rtde.link import Link, LinkDown, LinkStalled, Mode, Snapshot
 from drivers.ur_rtde.probe import ControllerUnreachable, probe_controller
 from drivers.ur_rtde.settings import URSettings
+from drivers.ur_rtde.stopping import BackgroundStop
 
 T = TypeVar("T")
 CLOSE_TIMEOUT_S = 10.0
@@ -90,15 +93,15 @@ class URRTDEDriver(Driver):
         """URControl's version as the pre-flight probe read it."""
         self._active = False
         self._seq = 0
-        self._stopped = False
-        """This driver's stop brought the arm to rest and no command has moved it since."""
-        self._stopping: asyncio.Future[None] | None = None
-        """A stop under way on the device thread: the loop's ticks go on meanwhile."""
+        self._stop_call = BackgroundStop(self._driver_error)
         self._last: StateSample | None = None
         self._commanded: tuple[float, ...] | None = None
         """The position the arm was last servoed to since activation (setpoint or hold), where
         a HOLD holds: a reading may be glitched, and servoing to it would move the arm there.
         None after a velocity or a stop (the arm ended somewhere no setpoint said)."""
+        self._readings = LastPlausible()
+        """Every reading, judged as the core judges its samples: with nothing commanded (after
+        a stop) a hold holds at a plausible one only."""
 
     @property
     def controller_time_s(self) -> float | None:
@@ -137,6 +140,7 @@ class URRTDEDriver(Driver):
                 f"the RTDE period of the arm at {host} ({self.settings.frequency_hz} Hz): "
                 "raise frequency_hz or lower the control rate")
         self._control = control
+        self._readings.configure(control)
         self._watchdog_hz = self.settings.watchdog_frequency_hz(control.period_ns * 1e-9)
 
     async def activate(self) -> None:
@@ -146,7 +150,7 @@ class URRTDEDriver(Driver):
         if not await self._run(link.program_running):
             await self._run(link.restart_script, timeout_s=self.settings.stop_timeout_s)
         await self._read_checked(streaming=True)
-        self._active, self._stopped, self._commanded = True, False, None
+        self._active, self._stop_call.stopped, self._commanded = True, False, None
 
     async def before_first_tick(self) -> None:
         """Arm the controller's watchdog now, right before the loop's first tick, so that its
@@ -156,9 +160,10 @@ class URRTDEDriver(Driver):
             await self._arm_watchdog(link, self._watchdog_hz)
 
     async def read(self) -> StateSample:
-        if self._stop_under_way() and self._last is not None:
+        if self._stop_call.under_way() and self._last is not None:
             return self._last  # the device thread is busy stopping the arm: no new sample
         snapshot = await self._read_checked(streaming=self._active)
+        self._readings.judge(snapshot.t_mono_ns, snapshot.q, snapshot.qd)
         self._seq += 1
         self._last = StateSample(
             seq=self._seq, t_mono_ns=snapshot.t_mono_ns, source=self.name, q=snapshot.q,
@@ -170,7 +175,7 @@ class URRTDEDriver(Driver):
     async def write(self, command: Command) -> Applied:
         if command.kind is CommandKind.STOP:
             return await self._stop()
-        await self._stop_finished()
+        await self._stop_call.finished()
         moves = command.kind in (CommandKind.POSITION, CommandKind.VELOCITY)
         if moves and command.gripper is not None and not math.isfinite(command.gripper):
             return await self._refused_and_kicked(command.kind)
@@ -182,7 +187,7 @@ class URRTDEDriver(Driver):
     async def _move(self, command: Command) -> Applied:
         link = self._link_or_raise()
         if command.kind is not CommandKind.STOP:
-            self._stopped = False
+            self._stop_call.stopped = False
         if command.kind is CommandKind.POSITION:
             if not setpoints.well_formed(command.q):
                 return await self._refused_and_kicked(command.kind)
@@ -208,16 +213,19 @@ class URRTDEDriver(Driver):
         return await self._refused_and_kicked(command.kind, ReasonCode.CONTROLLER_MODE_MISMATCH)
 
     async def hold(self) -> Applied:
-        """Servo to the last commanded position while streaming (the measured one if none);
+        """Servo to the last commanded position while streaming (the measured one if none,
+        after activation or a stop, and only if plausible: else the last plausible reading);
         stopJ when not streaming.
 
         Never to a fresh reading once a position was commanded: a glitched one (an encoder
         or frame reporting a joint 0.5 rad off) held every tick of an operator's takeover
         moved the arm 0.5 rad toward it, and chased the glitch for as long as it lasted."""
-        await self._stop_finished()
+        await self._stop_call.finished()
         link = self._link_or_raise()
-        self._stopped = False
-        measured = (await self._read_checked(streaming=self._active)).q  # and its status words
+        self._stop_call.stopped = False
+        snapshot = await self._read_checked(streaming=self._active)  # and its status words
+        measured = self._readings.believed(snapshot.t_mono_ns, snapshot.q, snapshot.qd)
+        measured = measured or snapshot.q
         if self._active:
             q = self._commanded if self._commanded is not None else measured
             return await self._servo(CommandKind.HOLD, link, q)
@@ -236,8 +244,8 @@ class URRTDEDriver(Driver):
     async def deactivate(self) -> None:
         """End servo or speed mode (the arm decelerates and stays powered), then remove the
         watchdog: that stops the control script; the next activation uploads it again."""
-        await self._stop_finished()
-        self._active = self._stopped = False
+        await self._stop_call.finished()
+        self._active = self._stop_call.stopped = False
         self._commanded = None
         link = self._link_or_raise()
         await self._run(link.end_streaming, timeout_s=self.settings.stop_timeout_s)
@@ -252,7 +260,7 @@ class URRTDEDriver(Driver):
         """Stop the script if the link is healthy, release both interfaces. Safe to call twice."""
         self._active = False
         thread, link = self._thread, self._link
-        self._thread, self._link, self._stopping = None, None, None
+        self._thread, self._link, self._stop_call.call = None, None, None
         if thread is None:
             return
         try:
@@ -330,51 +338,25 @@ class URRTDEDriver(Driver):
         return setpoints.refused(kind, ReasonCode.CONTROLLER_REJECT)
 
     async def _stop(self) -> Applied:
-        """Stop once, without the loop waiting for it; a STOP repeated while the arm stays
-        stopped (every tick of E_STOP and CONTROLLER_STOP) only reads the status words and
-        kicks the watchdog.
-
-        The stop (servoStop or speedStop, stopJ, the watchdog lengthened around them) is
-        several blocking round trips to the script, 50 to 120 ms on the emulator and the
-        deceleration itself on an arm: sent every period it held the loop to ~200 Hz, and
-        awaited once it stalls the loop. So it runs on the device thread while the ticks go
-        on; until it is done, reads repeat the last sample (not fresh) and STOP is answered
-        without a call. Any other command waits for it; its failure is raised by the next call.
-        """
+        """Stop once, without the loop waiting for it (:mod:`drivers.ur_rtde.stopping`); a
+        STOP repeated while the arm stays stopped (every tick of E_STOP and CONTROLLER_STOP)
+        only reads the status words and kicks the watchdog."""
         link = self._link_or_raise()
-        if self._stop_under_way():
+        if self._stop_call.under_way():
             return self._stop_applied()
-        if self._stopped and link.mode is Mode.IDLE:
+        if self._stop_call.stopped and link.mode is Mode.IDLE:
             q = (await self._read_checked(streaming=False)).q
             await self._run(link.kick_watchdog)
             return Applied(kind=CommandKind.STOP, t_mono_ns=time.monotonic_ns(), q=q)
         if self._thread is None:
             raise NotConnected(self.name, f"not connected to the arm at {self.settings.host}")
-        self._stopped, self._commanded = False, None
-        self._stopping = self._thread.submit(self.settings.stop_timeout_s, link.stop)
+        self._commanded = None
+        self._stop_call.start(self._thread, self.settings.stop_timeout_s, link.stop)
         return self._stop_applied()
 
     def _stop_applied(self) -> Applied:
         q = self._last.q if self._last is not None else ()
         return Applied(kind=CommandKind.STOP, t_mono_ns=time.monotonic_ns(), q=q)
-
-    def _stop_under_way(self) -> bool:
-        """Whether a stop is still under way; one that failed raises its error here."""
-        call = self._stopping
-        if call is None or not call.done():
-            return call is not None
-        self._stopping = None
-        error = call.exception()
-        if error is not None:
-            raise self._driver_error(error) from error
-        self._stopped = True
-        return False
-
-    async def _stop_finished(self) -> None:
-        """A command other than STOP (a hold after a recovery) starts once the stop is done."""
-        if self._stopping is not None:
-            await asyncio.wait([self._stopping])
-            self._stop_under_way()
 
     async def _run(self, fn: Callable[..., T], *args: object, timeout_s: float | None = None
                    ) -> T:

@@ -190,7 +190,8 @@ def control_config(config: CoreConfig) -> ControlConfig:
     return ControlConfig(
         dof=int(arm.sum()), period_ns=config.control_period_ns,
         q_lower=tuple(limits.lower[arm].tolist()), q_upper=tuple(limits.upper[arm].tolist()),
-        v_max=tuple(limits.velocity[arm].tolist()))
+        v_max=tuple(limits.velocity[arm].tolist()),
+        a_max=tuple(limits.acceleration[arm].tolist()))
 
 
 def report_progress(context: RunContext, progress: CycleProgress | None) -> None:

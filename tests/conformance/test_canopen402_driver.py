@@ -16,7 +16,7 @@ from collections.abc import Iterator
 import pytest
 
 from assurance.reasons import ReasonCode
-from drivers.canopen402 import CiA402Driver
+from drivers.canopen402.driver import CiA402Driver
 from drivers.testing import DriverConformance, Harness
 from stubs.cia402_drive import DriveEmulator
 from stubs.cia402_drive.launch import unique_udp_bus

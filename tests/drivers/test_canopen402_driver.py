@@ -25,7 +25,8 @@ from drivers.base import (
     DriverIOError,
     DriverState,
 )
-from drivers.canopen402 import CiA402Driver, CiA402Settings
+from drivers.canopen402 import CiA402Settings
+from drivers.canopen402.driver import CiA402Driver
 from drivers.canopen402.tables import DriveState
 from drivers.lifecycle import ManagedDriver
 from stubs.cia402_drive import DriveEmulator
@@ -134,7 +135,14 @@ async def test_csp_targets_move_every_joint_of_the_plant(bus: Arm) -> None:
         await driver.aclose()
 
 
-async def test_quick_stop_holds_and_refuses_motion_until_hold(bus: Arm) -> None:
+@pytest.mark.parametrize("resume", [CommandKind.POSITION, CommandKind.HOLD])
+async def test_quick_stop_holds_until_the_next_command_resumes_from_where_it_stopped(
+        bus: Arm, resume: CommandKind) -> None:
+    """After a quick stop the drives stay in QUICK STOP ACTIVE, at rest short of the goal;
+    the next setpoint (the core's first after an accepted recovery) or hold enables them again
+    with their targets where the stop left them, so nothing jumps toward the old goal.
+    Before, a setpoint there was refused (CONTROLLER_REJECT) until a HOLD came, which the core
+    never sends after a recovery: each recovery ended in another CONTROLLER_STOP."""
     driver = await _active(bus.settings())
     try:
         start = np.array((await driver.read()).q)
@@ -149,10 +157,14 @@ async def test_quick_stop_holds_and_refuses_motion_until_hold(bus: Arm) -> None:
         await asyncio.sleep(0.2)
         assert np.abs(np.array((await driver.read()).q) - before).max() < 1e-3
         assert abs(before[0] - goal[0]) > 0.2  # it stopped short of the goal
-        refused = await driver.write(Command(kind=CommandKind.POSITION, q=tuple(goal)))
-        assert (refused.accepted, refused.reason) == (False, ReasonCode.CONTROLLER_REJECT)
-        assert (await driver.hold()).accepted
+        resumed = await driver.write(Command(kind=resume, q=tuple(before.tolist()) if (
+            resume is CommandKind.POSITION) else ()))
+        assert resumed.accepted, resumed
         assert bus.states() == {PowerState.OPERATION_ENABLED}
+        for _ in range(round(0.1 / PERIOD_S)):  # held where it stopped, not off to the goal
+            await driver.write(Command(kind=CommandKind.HOLD))
+            await asyncio.sleep(PERIOD_S)
+        assert np.abs(bus.plant_q() - before).max() < 1e-3
         await _stream(driver, before + 0.05, 0.3)
         assert abs(bus.plant_q()[0] - (before[0] + 0.05)) < 0.01
     finally:

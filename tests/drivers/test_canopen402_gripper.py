@@ -27,7 +27,8 @@ from drivers.base import (
     DriverIOError,
     DriverState,
 )
-from drivers.canopen402 import CiA402Driver, CiA402Settings
+from drivers.canopen402 import CiA402Settings
+from drivers.canopen402.driver import CiA402Driver
 from drivers.canopen402.gripper import MAX_OPENING_M
 from drivers.canopen402.tables import DriveState
 from drivers.lifecycle import ManagedDriver

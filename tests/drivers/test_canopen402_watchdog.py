@@ -38,7 +38,8 @@ import pytest
 
 from assurance.reasons import ReasonCode
 from drivers.base import Command, CommandKind, ControlConfig, DeviceFault, DriverState
-from drivers.canopen402 import CiA402Driver, CiA402Settings
+from drivers.canopen402 import CiA402Settings
+from drivers.canopen402.driver import CiA402Driver
 from drivers.canopen402.watchdog import MasterHeartbeat
 from drivers.lifecycle import ManagedDriver
 from stubs.cia402_drive import DriveEmulator

@@ -7,6 +7,12 @@ takeover. Before the fix every driver held at the device's present reading, so e
 servoed the arm toward the glitched value: the true joint left its setpoint by tenths of a
 radian within the glitch. Now a hold writes the last setpoint again, and the true joint stays
 within the servo's tracking of it (asserted from the emulator's ground truth, never timed).
+
+Where a driver has no setpoint to hold, it must read the device once: the first STOP of a
+Dynamixel arm (the goal where the servo is), the first hold after a stop on UR and CiA 402 (the
+stop's ramp left the arm where no setpoint said). A glitch exactly at that read made the
+glitched value the target; now the driver judges each reading as the core does
+(``drivers.plausible``) and takes an implausible one's place from the last plausible reading.
 """
 
 from __future__ import annotations
@@ -16,7 +22,7 @@ import time
 from collections.abc import Callable, Sequence
 
 from drivers.base import Command, CommandKind, ControlConfig, Driver
-from drivers.canopen402 import CiA402Driver
+from drivers.canopen402.driver import CiA402Driver
 from drivers.dynamixel.driver import DynamixelDriver
 from drivers.dynamixel.settings import DynamixelSettings
 from drivers.ur_rtde.driver import URRTDEDriver
@@ -42,7 +48,7 @@ Truth = Callable[[], Sequence[float]]
 
 def _limits(period_s: float) -> ControlConfig:
     return ControlConfig(dof=6, period_ns=int(period_s * 1e9), q_lower=(-3.0,) * 6,
-                         q_upper=(3.0,) * 6, v_max=(3.0,) * 6)
+                         q_upper=(3.0,) * 6, v_max=(3.0,) * 6, a_max=(20.0,) * 6)
 
 
 async def _held_through_a_glitch(driver: Driver, control: ControlConfig, truth: Truth,
@@ -119,3 +125,76 @@ async def test_the_cia402_arm_holds_its_last_targets_through_a_reading_glitch() 
             lambda: emulator.inject("reading_glitch", joint=0, offset=OFFSET_RAD,
                                     duration_ms=GLITCH_MS))
     assert moved < TOLERANCE_RAD, f"the arm moved {moved:.3f} rad while held"
+
+
+async def _glitched_at_the_first_read(driver: Driver, control: ControlConfig, truth: Truth,
+                                      glitch: Callable[[], object], command: Command,
+                                      stopped: bool = False) -> float:
+    """Command the arm where it is (and, if ``stopped``, STOP it and let it rest, reading
+    every period as the loop does); glitch joint 0's reading; then ``command`` with no read
+    before it, so that its own read of the device is the first to see the glitch; then read
+    and ``command`` every period. The farthest the true joint 0 went from where it rested."""
+    period_s = control.period_ns * 1e-9
+    async with active(driver, control) as arm:
+        here = Command(kind=CommandKind.POSITION, q=(await arm.read()).q)
+        for _ in range(10):
+            await arm.read()
+            assert (await arm.write(here)).accepted
+            await asyncio.sleep(period_s)
+        for _ in range(round(0.3 / period_s) if stopped else 0):
+            await arm.read()
+            assert (await arm.write(Command(kind=CommandKind.STOP))).accepted
+            await asyncio.sleep(period_s)
+        rest = truth()[0]
+        glitch()
+        await asyncio.sleep(3 * period_s)  # reported by the device now, and read by nobody
+        assert (await arm.write(command)).accepted
+        farthest, reported = 0.0, 0.0
+        end = time.monotonic() + HOLDING_S
+        while time.monotonic() < end:
+            reported = max(reported, abs((await arm.read()).q[0] - rest))
+            assert (await arm.write(command)).accepted
+            farthest = max(farthest, abs(truth()[0] - rest))
+            await asyncio.sleep(period_s)
+        assert reported > OFFSET_RAD / 2  # the glitch lasted: the reads after saw it too
+    return farthest
+
+
+async def test_the_first_dynamixel_stop_takes_no_glitched_reading_for_its_goal() -> None:
+    with BusEmulator("--ids", "1,2,3,4,5,6") as bus:
+        driver = DynamixelDriver(DynamixelSettings(port=bus.port, **WIDE_TIMING))
+        moved = await _glitched_at_the_first_read(
+            driver, _limits(0.008), lambda: inject(bus.fault_address, "ground_truth")["q"],
+            lambda: bus.inject("reading_glitch", joint=0, offset=OFFSET_RAD,
+                               duration_ms=GLITCH_MS), Command(kind=CommandKind.STOP))
+    assert moved < TOLERANCE_RAD, f"the arm moved {moved:.3f} rad after its first stop"
+
+
+async def test_the_first_ur_hold_after_a_stop_takes_no_glitched_reading() -> None:
+    with EmulatedController() as emulator:
+        address = (emulator.host, int(emulator.info["control_port"]))
+        driver = URRTDEDriver(URSettings(host=emulator.host, watchdog_periods=250))
+        moved = await _glitched_at_the_first_read(
+            driver, _limits(0.002), lambda: inject(address, "ground_truth")["q"],
+            lambda: inject(address, "reading_glitch", joint=0, offset=OFFSET_RAD,
+                           duration_ms=GLITCH_MS), HOLD, stopped=True)
+    assert moved < TOLERANCE_RAD, f"the arm moved {moved:.3f} rad held after a stop"
+
+
+async def test_the_first_cia402_hold_after_a_quick_stop_takes_no_glitched_reading() -> None:
+    emulator = DriveEmulator(cia402.emulator_config("virtual", cia402.unique_virtual_channel()))
+    with emulator:
+        driver = CiA402Driver(cia402.driver_settings("virtual", emulator.config.channel))
+
+        def truth() -> Sequence[float]:
+            with emulator.lock:
+                return emulator.plant.state().q
+
+        control = cia402.control()
+        control = ControlConfig(control.dof, control.period_ns, control.q_lower,
+                                control.q_upper, control.v_max, a_max=(20.0,) * 6)
+        moved = await _glitched_at_the_first_read(
+            driver, control, truth,
+            lambda: emulator.inject("reading_glitch", joint=0, offset=OFFSET_RAD,
+                                    duration_ms=GLITCH_MS), HOLD, stopped=True)
+    assert moved < TOLERANCE_RAD, f"the arm moved {moved:.3f} rad held after a quick stop"

@@ -18,7 +18,7 @@ import pytest
 import structlog
 
 from drivers.base import Command, CommandKind, DriverIOError
-from drivers.canopen402 import CiA402Driver
+from drivers.canopen402.driver import CiA402Driver
 from drivers.canopen402.tables import TPDO_COB_BASE
 from drivers.lifecycle import ManagedDriver
 from kernel.safety.canopen import CiA402Watch
