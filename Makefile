@@ -62,13 +62,19 @@ fuzz: $(STAMP)
 
 # Mutation testing (mutmut, pinned in the `mutants` extra) of the safety-critical modules that
 # pyproject.toml's [tool.mutmut] names, each mutant against the in-process tests that reach it;
-# prints the survivors. Not part of `make test`: the whole set takes hours on two cores.
-# MUTANTS narrows it to mutant names (globs), e.g. MUTANTS='kernel.signing*'.
+# prints the counts per module and the survivors. Not part of `make test`: the whole set takes
+# hours on two cores. MUTANTS narrows it to mutant names (globs), e.g. MUTANTS='kernel.signing.*';
+# MUTANT_CHILDREN caps the parallel test runs (mutmut's default: one per core). A run that could
+# not start (a test failing while mutmut collects its stats, or without mutants) fails here
+# rather than printing an earlier run's results; one stopped early keeps the mutants it ran.
 MUTANTS ?=
+MUTANT_CHILDREN ?=
 
 mutants: $(STAMP)
 	$(BIN)/pip install --quiet --disable-pip-version-check -e '.[dev,mutants]'
-	-$(BIN)/mutmut run $(MUTANTS)
+	$(BIN)/mutmut run $(if $(MUTANT_CHILDREN),--max-children $(MUTANT_CHILDREN)) $(MUTANTS)
+	@echo "== counts per module"
+	@$(BIN)/python -m tools.mutant_counts mutants
 	@echo "== survivors (mutmut show <name> prints one)"
 	@$(BIN)/mutmut results
 

@@ -79,8 +79,9 @@ def breaches(sample: Sample, limits: Limits) -> list[Finding]:
     """Every limit the sample breaks, in joint order; a value that is not finite breaks it."""
     found: list[Finding] = []
     if len(sample.q) != len(limits.lower) or len(sample.qd) != len(limits.velocity):
-        return [Finding(Breach.DEVICE_LOST, f"the device reports {len(sample.q)} joints, the "
-                        f"manifest has {len(limits.lower)}")]
+        return [Finding(Breach.DEVICE_LOST, f"the device reports {len(sample.q)} positions and "
+                        f"{len(sample.qd)} velocities, the manifest has {len(limits.lower)} "
+                        f"joints")]
     found += _positions(sample.q, limits)
     found += _velocities(sample.qd, limits)
     if limits.max_force_n is not None and sample.force_n is not None and not (
