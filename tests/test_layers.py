@@ -390,3 +390,38 @@ def test_an_import_circle_through_a_lazy_import_is_reported(tmp_path: Path) -> N
     })
     assert import_cycles("kernel.safety", root) == [["kernel.safety.devices",
                                                       "kernel.safety.ur"]]
+
+
+SANS_IO = "kernel.shell.link_protocol"
+"""The policy link's protocol objects (kernel/shell/link_protocol*.py): frames and times in,
+frames and events out. The shell owns the socket, the tasks and the clock, so a protocol object
+reaches none of them, through any module (a lockstep run drives it on the virtual clock)."""
+
+
+def sans_io_reaches_io(root: Path = ROOT) -> list[str]:
+    """Each I/O, clock or concurrency module a protocol object reaches, with the chain."""
+    graph = graph_of(root)
+    found = []
+    for start in sorted(m for m in graph if m.startswith(SANS_IO)):
+        parent = reached_from(start, graph)
+        found += [_chain(m, parent) for m in sorted(parent) if m in IO_AND_CONCURRENCY]
+    return found
+
+
+def test_the_link_protocol_objects_reach_no_socket_clock_or_task() -> None:
+    reached = sans_io_reaches_io()
+    if reached:
+        pytest.fail("a policy link protocol object reaches I/O, a clock or concurrency:\n"
+                    + "\n".join(reached), pytrace=False)
+
+
+def test_a_clock_a_protocol_object_reaches_through_another_module_is_reported(
+        tmp_path: Path) -> None:
+    root = _tree(tmp_path, {
+        "kernel/__init__.py": "", "kernel/shell/__init__.py": "",
+        "kernel/shell/link_protocol_x.py": "from kernel.shell.pacing import wait\n",
+        "kernel/shell/pacing.py": "def wait():\n    import asyncio\n",
+        "kernel/shell/client.py": "import asyncio\n",
+    })
+    assert sans_io_reaches_io(root) == [
+        "kernel.shell.link_protocol_x → kernel.shell.pacing → asyncio"]

@@ -2,17 +2,14 @@
 
 from __future__ import annotations
 
-import asyncio
 from dataclasses import dataclass
 from enum import StrEnum
 
 from websockets.asyncio.client import ClientConnection
 from websockets.exceptions import ConnectionClosed
 
-from assurance.handshake import HandshakeOffer
-from kernel import wire
 from kernel.shell.link_types import LinkCounters
-from kernel.wire import ByeReason, Message, ProtocolViolation
+from kernel.wire import ByeReason
 
 CLOSE_TOO_BIG = 1009
 SILENCE = frozenset({ByeReason.HEARTBEAT_TIMEOUT, ByeReason.CLOCK_TIMEOUT,
@@ -42,20 +39,11 @@ class LinkEnded(Exception):
 
 @dataclass(slots=True, eq=False)
 class Connection:
-    """Per-connection state; a new one for every connection."""
+    """One websocket connection: the bytes moved, nothing of the session (the protocol object
+    holds that: the negotiated version, the timers, the clock exchange)."""
 
     ws: ClientConnection
     counters: LinkCounters
-    last_rx: float
-    offer: asyncio.Future[HandshakeOffer]
-    version: int | None = None
-    pong: asyncio.Future[tuple[wire.ClockPong, int]] | None = None
-    """The answer to the one ping in flight (pings of a burst go one at a time)."""
-    ping_seq: int = 0
-
-    async def send(self, message: Message) -> None:
-        """Send one message; a closed connection ends the link (:class:`LinkEnded`)."""
-        await self.send_data(wire.encode(message))
 
     async def send_data(self, data: bytes) -> None:
         """Send one encoded frame; a closed connection ends the link (:class:`LinkEnded`)."""
@@ -65,11 +53,6 @@ class Connection:
             raise closed(error) from error
         self.counters.frames_out += 1
         self.counters.bytes_out += len(data)
-
-    def violation(self, error: ProtocolViolation) -> LinkEnded:
-        """The peer broke the protocol: counted, and the end of this connection."""
-        self.counters.protocol_violations += 1
-        return LinkEnded(error.reason, error.detail)
 
 
 def closed(error: ConnectionClosed) -> LinkEnded:

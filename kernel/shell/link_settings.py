@@ -1,8 +1,9 @@
 """``[policy]``: the policy server a run talks to and what one policy peer may cost.
 
 One type, in the manifest's unit (milliseconds, as written), used by the link directly
-(:class:`kernel.shell.link_types.ClientConfig` holds it); the ``*_s`` properties are the only
-conversion to the seconds the link's timers count in. Each field's range is declared on the
+(:class:`kernel.shell.link_types.ClientConfig` holds it); ``LinkTiming.of`` (link_types.py)
+is the one conversion to the nanoseconds the link's protocol object times in (the ``*_s``
+properties remain for readers counting in seconds). Each field's range is declared on the
 field (:mod:`kernel.tables` checks it while the manifest loads; docs/manifest.md, "Bounds").
 """
 

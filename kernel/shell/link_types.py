@@ -10,6 +10,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from assurance.clock import ms_to_ns
 from assurance.handshake import ClientHello
 from kernel import wire
 from kernel.core import events as ev
@@ -59,6 +60,50 @@ class LaunchedServer(Protocol):
 
 
 @dataclass(frozen=True, slots=True)
+class LinkTiming:
+    """Every time and rate the protocol object decides on, in the unit it counts in (ns).
+
+    ``clock_burst`` 0: the peer reads the robot's own clock (the in-process policy of a
+    lockstep run), so there is no clock exchange.
+    """
+
+    heartbeat_interval_ns: int
+    heartbeat_timeout_ns: int
+    handshake_timeout_ns: int
+    clock_burst: int
+    clock_ping_timeout_ns: int
+    clock_refresh_ns: int
+    max_requests_in_flight: int
+    request_timeout_ns: int
+    max_frames_per_s: float
+    max_chunks_per_s: float
+
+    def __post_init__(self) -> None:
+        if self.clock_burst < 0:
+            raise ValueError("clock_burst must be at least 0")
+        if not 0 < self.heartbeat_interval_ns < self.heartbeat_timeout_ns:
+            raise ValueError("need 0 < heartbeat_interval_ns < heartbeat_timeout_ns")
+
+    @classmethod
+    def of(cls, policy: PolicySettings, *, handshake_timeout_s: float, clock_burst: int,
+           clock_ping_timeout_s: float, clock_refresh_s: float) -> LinkTiming:
+        return cls(
+            heartbeat_interval_ns=ms_to_ns(policy.heartbeat_interval_ms),
+            heartbeat_timeout_ns=ms_to_ns(policy.heartbeat_timeout_ms),
+            handshake_timeout_ns=_ns(handshake_timeout_s), clock_burst=clock_burst,
+            clock_ping_timeout_ns=_ns(clock_ping_timeout_s),
+            clock_refresh_ns=_ns(clock_refresh_s),
+            max_requests_in_flight=policy.max_requests_in_flight,
+            request_timeout_ns=ms_to_ns(policy.request_timeout_ms),
+            max_frames_per_s=policy.max_frames_per_s, max_chunks_per_s=policy.max_chunks_per_s)
+
+
+def _ns(seconds: float) -> int:
+    """The client's own knobs are in seconds; ``[policy]``'s in ms (``ms_to_ns``)."""
+    return round(seconds * 1e9)
+
+
+@dataclass(frozen=True, slots=True)
 class ClientConfig:
     url: str
     client_id: str = field(default_factory=lambda: f"warden-{uuid.uuid4().hex[:8]}")
@@ -81,6 +126,14 @@ class ClientConfig:
             raise ValueError("clock_burst must be at least 1")
         if not 0 < self.backoff_initial_s <= self.backoff_max_s:
             raise ValueError("need 0 < backoff_initial_s <= backoff_max_s")
+
+    @property
+    def timing(self) -> LinkTiming:
+        """What the protocol object times, from ``[policy]`` and the client's own knobs."""
+        return LinkTiming.of(self.policy, handshake_timeout_s=self.handshake_timeout_s,
+                             clock_burst=self.clock_burst,
+                             clock_ping_timeout_s=self.clock_ping_timeout_s,
+                             clock_refresh_s=self.clock_refresh_s)
 
 
 @dataclass(slots=True)

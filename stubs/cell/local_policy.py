@@ -6,7 +6,9 @@ WardenProtocol`): its offer goes in as an ``offer`` frame, the core's decision c
 the frame the protocol sends; a request from the core becomes the protocol's observation frame,
 which this policy reads, and the chunk comes back after a latency drawn from the same model the
 server uses, as the same bytes the server would send (:func:`stubs.policy_server.chunk_frame`).
-Times are in the client's own clock domain. Everything is seeded, so a lockstep run is
+The protocol's timing runs on the virtual clock too: the run wakes it when a tick passes its
+deadline, and this policy answers each heartbeat. Times are in the client's own clock domain
+(no clock exchange: ``clock_burst`` 0). Everything is seeded, so a lockstep run is
 deterministic.
 """
 
@@ -24,15 +26,18 @@ from kernel import wire
 from kernel.core.effects import ChunkDecision, RequestObservation
 from kernel.shell.gateway import CoreGateway
 from kernel.shell.link_protocol import (
-    ChunkArrived,
+    ChunksWaiting,
     Ended,
     Feed,
+    HelloDue,
+    ObservationDue,
     OfferArrived,
     Output,
     Send,
     WardenProtocol,
 )
-from kernel.shell.link_types import LinkCounters
+from kernel.shell.link_settings import PolicySettings
+from kernel.shell.link_types import LinkCounters, LinkTiming
 from stubs.policy_server.cartesian import output_for
 from stubs.policy_server.envelope import (
     ChunkSource,
@@ -43,6 +48,12 @@ from stubs.policy_server.envelope import (
 from stubs.policy_server.policy import InsertionPolicy, LatencyModel
 
 
+def local_timing(policy: PolicySettings) -> LinkTiming:
+    """The protocol's timing for an in-process policy on the virtual clock."""
+    return LinkTiming.of(policy, handshake_timeout_s=5.0, clock_burst=0,
+                         clock_ping_timeout_s=1.0, clock_refresh_s=10.0)
+
+
 @dataclass(frozen=True, slots=True)
 class LocalPolicyConfig:
     offer: HandshakeOffer
@@ -51,6 +62,9 @@ class LocalPolicyConfig:
     max_observation_age_ms: float = 80.0
     max_action_age_ms: float = 250.0
     seed: int = 0
+    timing: LinkTiming = field(default_factory=lambda: local_timing(PolicySettings()))
+    """The link's timers and budget (the manifest's ``[policy]``); no clock exchange: this
+    policy reads the robot's own clock."""
 
 
 @dataclass(order=True)
@@ -67,10 +81,10 @@ class LocalPolicyLink:
         self.config = config
         self.gateway = gateway
         self.counters = LinkCounters()
-        self.protocol = WardenProtocol("local", wire.PROTOCOL_RANGE, self.counters)
-        self.sent: list[bytes] = []
+        self.protocol = WardenProtocol("local", wire.PROTOCOL_RANGE, self.counters,
+                                       config.timing)
         self.ended: str | None = None
-        """The frames the protocol sent this policy (the in-memory pipe's other direction)."""
+        """Why the protocol ended the session (a refused handshake), if it did."""
         self.rng = np.random.default_rng(config.seed)
         self._pending: list[_Pending] = []
         self._order = itertools.count()
@@ -84,60 +98,68 @@ class LocalPolicyLink:
     def connect(self) -> None:
         """Open the session: the protocol's hello, this policy's offer, the core's decision."""
         gateway = self.gateway
-        self.protocol.begin()
-        self._carry(self.protocol.hello(gateway.client_side_hello()))
+        self._carry(self.protocol.connect(gateway.now_ns()))
         epoch = gateway.client_side_hello().queue_epoch
         offer = msgspec.structs.replace(self.config.offer, queue_epoch=epoch)
-        frame = wire.encode(wire.Offer(server_id="local", offer=offer))
-        for output in self.protocol.receive_frame(frame, gateway.now_ns()):
-            if isinstance(output, OfferArrived):
-                step = gateway.feed(self.protocol.handshake_event(output.offer,
-                                                                  gateway.now_ns()))
-                for record in step.decisions:
-                    self._carry(self.protocol.on_decision(
-                        record, gateway.client_side_hello().queue_epoch))
+        self._receive(wire.encode(wire.Offer(server_id="local", offer=offer)))
 
     def deliver_due(self) -> None:
-        """Hand the core every chunk whose simulated inference has finished by now."""
+        """Wake the protocol at its deadlines (heartbeats, expired requests), then hand the core
+        every chunk whose simulated inference has finished by now."""
         now = self.gateway.now_ns()
+        deadline = self.protocol.next_deadline()
+        if deadline is not None and deadline <= now:
+            self._carry(self.protocol.timeout(now))
         while self._pending and self._pending[0].due_ns <= now:
             pending = heapq.heappop(self._pending)
-            if not self.protocol.accepted:
-                continue  # no session (refused): the policy's chunks reach no core
-            for output in self.protocol.receive_frame(pending.frame, now):
-                if isinstance(output, ChunkArrived):
-                    self.gateway.feed(self.protocol.chunk_event(output.frame, now))
+            if self.protocol.accepted:  # no session (refused): the policy's chunks reach no core
+                self._receive(pending.frame)
+
+    def _receive(self, frame: bytes) -> None:
+        """A frame from this policy, over the pipe, read now."""
+        self._carry(self.protocol.receive_frame(frame, self.gateway.now_ns()))
 
     def _on_decision(self, decided: ChunkDecision) -> None:
-        self.protocol.on_decision(decided, self.gateway.client_side_hello().queue_epoch)
-
-    def _carry(self, outputs: list[Output]) -> None:
-        for output in outputs:
-            if isinstance(output, Send):
-                self.sent.append(output.data)
-            elif isinstance(output, Feed):
-                self.gateway.feed(output.event)
-            elif isinstance(output, Ended):  # a refused handshake: no session, no chunks
-                self.ended = output.detail
+        self._carry(self.protocol.on_decision(
+            decided, self.gateway.client_side_hello().queue_epoch, self.gateway.now_ns()))
 
     def _on_request(self, _: RequestObservation) -> None:
         self.requests += 1
-        t = self.gateway.now_ns()
-        self.sent.clear()
-        self._carry(self.protocol.observe(self.gateway.capture_observation(), t,
-                                          self.gateway.client_side_hello().queue_epoch))
-        observation = self._read(self.sent[-1])
-        latency_ns = round(self.config.latency.sample_s(self.rng) * 1e9)
-        frame = chunk_frame(self._source, self._proposal(observation, latency_ns))
-        heapq.heappush(self._pending, _Pending(t + latency_ns, next(self._order), frame))
+        self._carry(self.protocol.request(self.gateway.now_ns()))
 
-    @staticmethod
-    def _read(data: bytes) -> wire.Observation:
+    def _carry(self, outputs: list[Output]) -> None:
+        gateway, protocol = self.gateway, self.protocol
+        for output in outputs:
+            if isinstance(output, Send):
+                self._policy_reads(output.data)
+            elif isinstance(output, Feed):
+                gateway.feed(output.event)
+            elif isinstance(output, HelloDue):
+                self._carry(protocol.hello(gateway.client_side_hello(), gateway.now_ns()))
+            elif isinstance(output, OfferArrived):
+                step = gateway.feed(protocol.handshake_event(output.offer, gateway.now_ns()))
+                for record in step.decisions:
+                    self._carry(protocol.on_decision(
+                        record, gateway.client_side_hello().queue_epoch, gateway.now_ns()))
+            elif isinstance(output, ChunksWaiting):  # admitted at once: no control period
+                self._carry(protocol.next_chunk(gateway.now_ns()))
+            elif isinstance(output, ObservationDue):
+                self._carry(protocol.observe(gateway.capture_observation(), gateway.now_ns(),
+                                             gateway.client_side_hello().queue_epoch))
+            elif isinstance(output, Ended):  # a refused handshake: no session, no chunks
+                self.ended = output.detail
+
+    def _policy_reads(self, data: bytes) -> None:
+        """This policy's side of the pipe: an observation is answered by a chunk after the
+        modelled latency, a heartbeat by a heartbeat (so the link never falls silent)."""
         message = wire.decode_body(frame := wire.decode_frame(data), wire.message_type(frame))
-        if not isinstance(message, wire.Observation):
-            raise RuntimeError(f"the local policy got {type(message).__name__}, not an "
-                               "observation")
-        return message
+        if isinstance(message, wire.Heartbeat):
+            self._receive(wire.encode(wire.Heartbeat(seq=message.seq, t_send=message.t_send)))
+        elif isinstance(message, wire.Observation):
+            latency_ns = round(self.config.latency.sample_s(self.rng) * 1e9)
+            frame_out = chunk_frame(self._source, self._proposal(message, latency_ns))
+            heapq.heappush(self._pending, _Pending(message.t_event + latency_ns,
+                                                   next(self._order), frame_out))
 
     def _proposal(self, observation: wire.Observation, latency_ns: int) -> Proposal:
         q = wire.payload_vector(observation.q)

@@ -16,7 +16,7 @@ from assurance.handshake import HandshakeOffer
 from kernel.app.context import CellContext
 from kernel.manifest import Manifest
 from kernel.shell.timer import Clock
-from stubs.cell.local_policy import LocalPolicyConfig, LocalPolicyLink
+from stubs.cell.local_policy import LocalPolicyConfig, LocalPolicyLink, local_timing
 from stubs.policy_server.policy import InsertionPolicy, LatencyModel
 from stubs.process import EmulatorProcess
 
@@ -64,7 +64,8 @@ def local_policy(context: CellContext, clock: Clock) -> LocalPolicyLink:
     manifest = context.manifest
     policy, latency = policy_model(manifest, policy_goal(context))
     return LocalPolicyLink(
-        LocalPolicyConfig(offer_for(manifest), policy, latency, seed=manifest.cell.seed),
+        LocalPolicyConfig(offer_for(manifest), policy, latency, seed=manifest.cell.seed,
+                          timing=local_timing(manifest.policy)),
         context.gateway)
 
 

@@ -18,7 +18,8 @@ from drivers.canopen402.settings import CiA402Settings
 from drivers.dynamixel.driver import DynamixelDriver
 from drivers.dynamixel.settings import DynamixelSettings
 from drivers.ur_rtde.settings import URSettings
-from kernel.shell.link_budget import AdmissionPacer, RequestWindow, TokenBucket
+from kernel.shell.link_budget import AdmissionPacer
+from kernel.shell.link_protocol_budget import RequestWindow, TokenBucket
 from kernel.shell.link_settings import PolicySettings
 from kernel.shell.link_types import ClientConfig
 
@@ -35,11 +36,11 @@ ADDRESS_STAND_INS: dict[str, dict[str, Any]] = {
 
 def use_policy(policy: PolicySettings, period_ns: int) -> None:
     """The policy link's budget, as ``kernel.app.live`` and ``kernel.shell.client`` build it."""
-    config = ClientConfig(url="ws://127.0.0.1:1", policy=policy).policy
-    TokenBucket(config.max_frames_per_s)
-    TokenBucket(config.max_chunks_per_s)
-    RequestWindow(config.max_requests_in_flight, config.request_timeout_s)
-    assert 0 < config.heartbeat_interval_s < config.heartbeat_timeout_s
+    timing = ClientConfig(url="ws://127.0.0.1:1", policy=policy).timing
+    TokenBucket(timing.max_frames_per_s)
+    TokenBucket(timing.max_chunks_per_s)
+    RequestWindow(timing.max_requests_in_flight, timing.request_timeout_ns)
+    assert 0 < timing.heartbeat_interval_ns < timing.heartbeat_timeout_ns
     AdmissionPacer(policy.admissions_per_period, period_ns // 2)
     ms_to_ns(policy.link_loss_bound_ms)
 

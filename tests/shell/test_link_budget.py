@@ -7,26 +7,18 @@ import asyncio
 
 import pytest
 
-from kernel.shell.link_budget import AdmissionPacer, RequestWindow, TokenBucket
+from kernel.shell.link_budget import AdmissionPacer
+from kernel.shell.link_protocol_budget import RequestWindow, TokenBucket
 
-
-class Clock:
-    def __init__(self) -> None:
-        self.now = 0.0
-
-    def __call__(self) -> float:
-        return self.now
+MS = 1_000_000
 
 
 def test_a_bucket_passes_one_burst_then_its_rate() -> None:
-    clock = Clock()
-    bucket = TokenBucket(100.0, clock)
+    bucket = TokenBucket(100.0)
     assert bucket.burst == 10
-    assert sum(bucket.take() for _ in range(50)) == 10  # the burst, however many arrive
-    clock.now += 0.05
-    assert sum(bucket.take() for _ in range(50)) == 5  # 100/s for 50 ms
-    clock.now += 10.0
-    assert sum(bucket.take() for _ in range(50)) == 10  # never more than a burst saved up
+    assert sum(bucket.take(0) for _ in range(50)) == 10  # the burst, however many arrive
+    assert sum(bucket.take(50 * MS) for _ in range(50)) == 5  # 100/s for 50 ms
+    assert sum(bucket.take(10_050 * MS) for _ in range(50)) == 10  # never more than a burst
 
 
 @pytest.mark.parametrize("rate", [0.0, -1.0, float("nan")])
@@ -36,22 +28,19 @@ def test_a_rate_limit_must_be_positive(rate: float) -> None:
 
 
 def test_the_window_holds_at_most_its_limit_until_answers_or_expiry() -> None:
-    clock = Clock()
-    window = RequestWindow(2, 0.25, clock)
-    window.sent("o1")
-    clock.now += 0.1
-    window.sent("o2")
-    assert not window.open() and window.wait_s() == pytest.approx(0.15)
+    window = RequestWindow(2, 250 * MS)
+    window.sent("o1", 0)
+    window.sent("o2", 100 * MS)
+    assert not window.open(100 * MS) and window.deadline() == 250 * MS
     window.answered("o2")
-    assert window.open() and window.changed.is_set()
-    window.sent("o3")
-    clock.now += 0.15  # o1 is 0.25 s old: expired, no longer in flight
-    assert window.open() and window.expired == 1 and len(window) == 1
+    assert window.open(100 * MS)
+    window.sent("o3", 100 * MS)
+    assert window.open(250 * MS) and window.expired == 1 and len(window) == 1  # o1 expired
 
 
 def test_only_the_first_chunk_citing_a_request_is_its_expected_answer() -> None:
-    window = RequestWindow(4, 1.0, Clock())
-    window.sent("o1")
+    window = RequestWindow(4, 1000 * MS)
+    window.sent("o1", 0)
     assert window.claim("o1") and not window.claim("o1")
     assert not window.claim("never-sent")
     window.answered("o1")
@@ -59,13 +48,13 @@ def test_only_the_first_chunk_citing_a_request_is_its_expected_answer() -> None:
 
 
 def test_an_unreadable_answer_frees_the_oldest_request() -> None:
-    window = RequestWindow(2, 1.0, Clock())
-    window.sent("o1")
-    window.sent("o2")
+    window = RequestWindow(2, 1000 * MS)
+    window.sent("o1", 0)
+    window.sent("o2", 1)
     window.answered(None)
     assert window.claim("o2") and not window.claim("o1")
     window.clear()
-    assert len(window) == 0 and window.open()
+    assert len(window) == 0 and window.open(2) and window.deadline() is None
 
 
 async def test_admissions_start_only_early_enough_in_the_period() -> None:
