@@ -19,6 +19,8 @@ from typing import Any
 
 from assurance.clock import ms_to_ns, ns_to_ms
 from kernel.app.task_settings import TaskSettings, check_home
+from kernel.config.build import build_config, check_keys
+from kernel.config.workspace import workspace_box
 from kernel.core.config import CoreConfig
 from kernel.manifest_tables import (
     decode_driver_settings,
@@ -29,10 +31,8 @@ from kernel.manifest_tables import (
     table,
 )
 from kernel.safety.settings import SafetySettings
-from kernel.scenario.config import build_config, check_keys
 from kernel.scenario.document import check_document, decoded, read_bytes
 from kernel.scenario.fields import ScenarioError, Where
-from kernel.scenario.workspace import workspace_box
 from kernel.sections import ScenarioSections
 from kernel.settings import (
     CellSettings,

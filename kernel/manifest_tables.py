@@ -1,7 +1,7 @@
 """The manifest tables that both warden's core configuration and the safety monitor read.
 
 One parser per knob, below both readers: :mod:`kernel.manifest` and
-:mod:`kernel.scenario.config` build the core's configuration with these functions, and the
+:mod:`kernel.config.build` build the core's configuration with these functions, and the
 safety monitor's own view (:mod:`kernel.safety.view`) reads the same tables with the same
 functions, so the limits the monitor checks are the limits warden was given, parsed once and
 refused with the same "file: table.key: why" messages. This module imports nothing of the core

@@ -6,7 +6,7 @@ core's typed configuration (:class:`kernel.core.config.CoreConfig`) at once; thi
 other thing they become, for the three readers that need the text and not the types:
 
 - the journal's header repeats them, so that ``warden replay`` rebuilds the run's core with
-  the scenario reader (:func:`kernel.scenario.config.build_config`), the very code that read
+  the scenario reader (:func:`kernel.config.build.build_config`), the very code that read
   them at load; a typed tree re-encoded would write the reader's defaults into the header as
   if the file had said them, and a recorded journal would no longer be the same document;
 - the job worker process builds its own configuration from them (the same reader again);

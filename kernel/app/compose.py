@@ -20,11 +20,11 @@ from kernel.app.context import CellContext
 from kernel.app.control import ControlLoop
 from kernel.app.device import DeviceWorld, World
 from kernel.app.task import assembly_runner
+from kernel.config.kinematics import model_spec
 from kernel.core.config import CoreConfig
 from kernel.core.runtime import Core
 from kernel.manifest import Manifest, ManifestError
 from kernel.scenario.fields import Where
-from kernel.scenario.kinematics import model_spec
 from kernel.sections import ScenarioSections
 from kernel.shell.gateway import CoreGateway
 from kernel.shell.recorder import Recorder

@@ -16,9 +16,9 @@ from msgspec import Meta
 
 from assurance.limits import JointLimits
 from drivers.settings import KeyProblem, Settings
+from kernel.config.workspace import Coordinate
 from kernel.scenario.bounds import FORCE_MAX_N, LENGTH_MAX_M
 from kernel.scenario.fields import Where
-from kernel.scenario.workspace import Coordinate
 from skills.layout import CellLayout
 
 Length = Annotated[float, Meta(ge=0.0, le=LENGTH_MAX_M)]

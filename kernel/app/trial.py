@@ -32,12 +32,12 @@ from kernel import signing
 from kernel.app.device import driver_from_manifest
 from kernel.app.session import RunContext
 from kernel.app.trial_limits import check_envelope
+from kernel.config.build import build_config
+from kernel.config.kinematics import model_spec
 from kernel.manifest import Manifest, ManifestError, TrialEnvelope, load_manifest
 from kernel.robot_model import digest
 from kernel.safety.status import ask
-from kernel.scenario.config import build_config
 from kernel.scenario.fields import ScenarioError, Where
-from kernel.scenario.kinematics import model_spec
 from kernel.sections import ScenarioSections
 
 ENVELOPE_KEYS = ("max_cycles", "max_duration_s", "workspace_lower", "workspace_upper",

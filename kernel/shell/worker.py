@@ -211,7 +211,7 @@ def _read_frame(stream: Any) -> bytes | None:
 def main() -> int:
     """The worker: build the configuration, then answer jobs until stdin closes."""
     _die_with_parent()
-    from kernel.scenario.config import build_config
+    from kernel.config.build import build_config
     from kernel.scenario.fields import Where
 
     stdin, stdout = sys.stdin.buffer, sys.stdout.buffer

@@ -21,9 +21,9 @@ from drivers.dynamixel.settings import DynamixelSettings
 from drivers.settings import SettingsError, bounds_of, read_table
 from drivers.ur_rtde.settings import URSettings
 from kernel.app.task_settings import TaskSettings
+from kernel.config.build import build_config
 from kernel.manifest import SCENARIO_SECTIONS, ManifestError, load_manifest
 from kernel.safety.settings import SafetySettings
-from kernel.scenario.config import build_config
 from kernel.scenario.fields import ScenarioError, Where
 from kernel.shell.link_settings import PolicySettings
 from kernel.shell.link_types import ClientConfig
