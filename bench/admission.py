@@ -33,6 +33,7 @@ import numpy as np
 from assurance.envelope import decode_wire_chunk, to_wire
 from assurance.event_chunk import decode_event_chunk
 from bench.counters import Counters, open_counters
+from kernel.config.build import build_config
 from kernel.core.effects import Compute
 from kernel.core.events import (
     ChunkEvent,
@@ -45,7 +46,6 @@ from kernel.core.events import (
 from kernel.core.jobs import run_job
 from kernel.core.lines import Line, encode
 from kernel.core.runtime import Core
-from kernel.scenario.config import build_config
 from kernel.scenario.fields import Where
 from kernel.scenario.load import Scenario
 from tools.scenarios.base import IDENTITY, ScenarioSpec, phases

@@ -41,6 +41,7 @@ from websockets.asyncio.server import serve
 
 from assurance.envelope import ArrayPayload, MalformedChunk, WireChunk, from_wire
 from assurance.handshake import ClientHello
+from kernel.config.build import build_config
 from kernel.core.effects import Setpoint, Step
 from kernel.core.events import (
     ChunkEvent,
@@ -52,7 +53,6 @@ from kernel.core.events import (
 )
 from kernel.core.lines import ChunkLine, Line
 from kernel.core.runtime import Core
-from kernel.scenario.config import build_config
 from kernel.scenario.fields import Where
 from kernel.shell.client import RobotClient
 from kernel.shell.link_settings import PolicySettings

@@ -23,7 +23,7 @@ import msgspec
 
 from assurance.reasons import ReasonCode
 from drivers.readiness import Finding
-from drivers.settings import settings_from_mapping
+from drivers.settings import Settings, read_table
 
 
 class DriverState(StrEnum):
@@ -91,8 +91,7 @@ class Applied(msgspec.Struct, frozen=True, kw_only=True):
     reason: ReasonCode | None = None
 
 
-@dataclass(frozen=True, slots=True)
-class NoSettings:
+class NoSettings(Settings, frozen=True):
     """The settings of a driver whose ``[driver]`` table takes no keys (the sim driver)."""
 
 
@@ -180,7 +179,7 @@ class Driver(abc.ABC):
             SettingsError: naming ``where.key`` (default ``drivers.<name>``).
         """
         where = where or f"drivers.{name or cls.default_name}"
-        return cls.from_settings(settings_from_mapping(cls.settings_type, table, where), name)
+        return cls.from_settings(read_table(cls.settings_type, table, where), name)
 
     @classmethod
     def from_settings(cls, settings: Any, name: str | None = None) -> Self:

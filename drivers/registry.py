@@ -12,7 +12,7 @@ from importlib.metadata import entry_points
 from typing import Any
 
 from drivers.base import Driver
-from drivers.settings import SettingsError, settings_from_mapping
+from drivers.settings import SettingsError, Where, read_table
 
 BUILTIN: dict[str, str] = {
     "sim": "drivers.sim.driver:SimDriver",
@@ -53,7 +53,7 @@ def load(name: str) -> type[Driver]:
     return found
 
 
-def settings_for(name: str, table: Mapping[str, Any], where: str, *,
+def settings_for(name: str, table: Mapping[str, Any], where: Where | str, *,
                  address_filled_in: bool = False) -> Any:
     """The ``[driver]`` table (without ``name``) decoded into the settings type the driver
     ``name`` declares, checked once: unknown keys, types and bounds.
@@ -64,12 +64,13 @@ def settings_for(name: str, table: Mapping[str, Any], where: str, *,
 
     Raises:
         UnknownDriver: no driver has that name.
-        SettingsError: naming ``where.key``.
+        SettingsError: naming ``where.key`` (the subclass ``where`` makes: a
+            ``ScenarioError`` for the manifest loader's place).
     """
     driver = load(name)
     if address_filled_in:
         table = {**driver.address_keys, **table}
-    return settings_from_mapping(driver.settings_type, table, where)
+    return read_table(driver.settings_type, table, where)
 
 
 __all__ = ["BUILTIN", "SettingsError", "UnknownDriver", "available", "load", "settings_for"]

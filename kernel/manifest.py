@@ -18,6 +18,9 @@ from pathlib import Path
 from typing import Any
 
 from assurance.clock import ms_to_ns, ns_to_ms
+from kernel.app.task_settings import TaskSettings, check_home
+from kernel.config.build import build_config, check_keys
+from kernel.config.workspace import workspace_box
 from kernel.core.config import CoreConfig
 from kernel.manifest_tables import (
     decode_driver_settings,
@@ -28,10 +31,9 @@ from kernel.manifest_tables import (
     table,
 )
 from kernel.safety.settings import SafetySettings
-from kernel.scenario.config import build_config, check_keys
 from kernel.scenario.document import check_document, decoded, read_bytes
 from kernel.scenario.fields import ScenarioError, Where
-from kernel.scenario.workspace import workspace_box
+from kernel.sections import ScenarioSections
 from kernel.settings import (
     CellSettings,
     ClockKind,
@@ -63,8 +65,9 @@ class Manifest:
     name: str
     path: Path
     core: CoreConfig
-    sections: dict[str, Any]
-    """The scenario sections as written (the journal's header repeats them)."""
+    sections: ScenarioSections
+    """The scenario sections as written, encoded and immutable (the journal's header repeats
+    them; :mod:`kernel.sections` says why they stay the document and not a typed tree)."""
     driver_name: str
     driver_settings: Any
     """``[driver]`` without ``name``, decoded once into the settings type that driver declares
@@ -73,8 +76,9 @@ class Manifest:
     cell: CellSettings = field(default_factory=CellSettings)
     policy: PolicySettings = field(default_factory=PolicySettings)
     journal: JournalSettings = field(default_factory=JournalSettings)
-    task: dict[str, Any] = field(default_factory=dict)
-    """``[task]`` as written: the assembly task's layout (:mod:`kernel.app.task` checks it)."""
+    task: TaskSettings | None = None
+    """``[task]``: the assembly task's layout, checked on load (None: no such table; the
+    assembly task then refuses the manifest, naming the first key it needs)."""
     operator: OperatorSettings = field(default_factory=OperatorSettings)
     trial: TrialEnvelope | None = None
     """``[trial]``: the envelope a bounded trial runs in (``warden trial`` requires it)."""
@@ -121,8 +125,8 @@ def _load(path: Path, raw: str) -> Manifest:
     doc = parse_toml(raw, str(path))
     check_document(doc, where)
     _refuse_unknown(doc, where)
-    sections = {key: doc[key] for key in SCENARIO_SECTIONS if key in doc}
-    core = build_config(sections, where)
+    written = {key: doc[key] for key in SCENARIO_SECTIONS if key in doc}
+    core = build_config(written, where)
     driver_name, driver = driver_table(doc, where)
     if driver_name != "sim" and core.state_timeout_ns is None:
         raise where.at("timing").error(
@@ -133,11 +137,12 @@ def _load(path: Path, raw: str) -> Manifest:
     policy = _policy(_read(PolicySettings, doc, "policy", where), where.at("policy"))
     _check_link_loss_first(core, policy, where)
     return Manifest(
-        name=run_name(doc, path, where), path=path, core=core, sections=sections,
+        name=run_name(doc, path, where), path=path, core=core,
+        sections=ScenarioSections.of(written),
         driver_name=driver_name, driver_settings=driver_settings, emulator=emulator,
         cell=_read(CellSettings, doc, "cell", where),
         policy=policy, journal=_read(JournalSettings, doc, "journal", where),
-        task=dict(table(doc, "task", where)),
+        task=_task(doc, where, core),
         operator=_read(OperatorSettings, doc, "operator", where),
         safety=safety_table(doc, where, core.control_period_ns),
         trial=_trial(doc, where),
@@ -222,6 +227,14 @@ def is_loopback(host: str) -> bool:
 
 def _read(cls: type, doc: Mapping[str, Any], key: str, where: Where) -> Any:
     return read_table(cls, table(doc, key, where), where.at(key))
+
+
+def _task(doc: Mapping[str, Any], where: Where, core: CoreConfig) -> TaskSettings | None:
+    if "task" not in doc:
+        return None
+    settings: TaskSettings = _read(TaskSettings, doc, "task", where)
+    check_home(settings, core.limits, where.at("task"))
+    return settings
 
 
 def _trial(doc: Mapping[str, Any], where: Where) -> TrialEnvelope | None:

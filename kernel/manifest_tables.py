@@ -1,7 +1,7 @@
 """The manifest tables that both warden's core configuration and the safety monitor read.
 
 One parser per knob, below both readers: :mod:`kernel.manifest` and
-:mod:`kernel.scenario.config` build the core's configuration with these functions, and the
+:mod:`kernel.config.build` build the core's configuration with these functions, and the
 safety monitor's own view (:mod:`kernel.safety.view`) reads the same tables with the same
 functions, so the limits the monitor checks are the limits warden was given, parsed once and
 refused with the same "file: table.key: why" messages. This module imports nothing of the core
@@ -22,7 +22,7 @@ from typing import Any
 import msgspec
 
 from drivers import registry
-from drivers.settings import SettingsError, settings_from_mapping
+from drivers.settings import read_table
 from kernel.safety.settings import SafetySettings, check_against_period
 from kernel.scenario import bounds
 from kernel.scenario.fields import (
@@ -165,11 +165,7 @@ def safety_table(doc: Mapping[str, Any], where: Where, period_ns: int) -> Safety
     when the manifest has no such table."""
     if "safety" not in doc:
         return None
-    try:
-        settings = settings_from_mapping(SafetySettings, table(doc, "safety", where),
-                                         f"{where.file}: safety")
-    except SettingsError as error:
-        raise ScenarioError(str(error)) from None
+    settings = read_table(SafetySettings, table(doc, "safety", where), where.at("safety"))
     problem = check_against_period(settings, period_ns)
     if problem:
         raise ScenarioError(f"{where.file}: safety.heartbeat_timeout_ms: {problem}")
@@ -258,9 +254,7 @@ def decode_driver_settings(name: str, driver: Mapping[str, Any], emulator_launch
     for warden's loader and the monitor's view alike; with ``[emulator] launch`` the run fills in
     the device's address from the emulator, so the table may leave it out."""
     try:
-        return registry.settings_for(name, driver, f"{where.file}: driver",
+        return registry.settings_for(name, driver, where.at("driver"),
                                      address_filled_in=emulator_launch)
     except registry.UnknownDriver as error:
         raise where.at("driver").at("name").error(str(error)) from None
-    except SettingsError as error:
-        raise ScenarioError(str(error)) from None

@@ -15,13 +15,13 @@ import msgspec
 from msgspec import Meta
 
 from assurance.kinematics import WorkspaceBox
+from kernel.config.workspace import Coordinate, WristForce
 from kernel.core.config import TrialBounds
 
 # [emulator] is read by the safety monitor too, so its type lives below both readers.
 from kernel.manifest_tables import EmulatorSettings as EmulatorSettings
 from kernel.manifest_tables import PlantKind as PlantKind
 from kernel.scenario import bounds
-from kernel.scenario.workspace import Coordinate, WristForce
 
 
 class ClockKind(StrEnum):
@@ -71,7 +71,7 @@ class TrialEnvelope(msgspec.Struct, frozen=True, kw_only=True):
     workspace_lower: tuple[Coordinate, Coordinate, Coordinate]
     """The box the tool (TCP) must stay in, base frame, metres: its lower corner..."""
     workspace_upper: tuple[Coordinate, Coordinate, Coordinate]
-    """...and its upper corner (:func:`kernel.scenario.workspace.workspace_box` checks it)."""
+    """...and its upper corner (:func:`kernel.config.workspace.workspace_box` checks it)."""
     speed_scale: Annotated[float, Meta(ge=0.01, le=1.0)]
     """Every joint's velocity limit is multiplied by this (0 < scale <= 1)."""
     max_wrist_force_n: WristForce
@@ -83,7 +83,7 @@ class TrialEnvelope(msgspec.Struct, frozen=True, kw_only=True):
 
     def section(self) -> dict[str, Any]:
         """The scenario's ``envelope`` section the journal's header records (a replay reads
-        it back with :func:`kernel.scenario.trial.trial_bounds`)."""
+        it back with :func:`kernel.config.envelope.trial_bounds`)."""
         return {"workspace": {"lower": list(self.workspace_lower),
                               "upper": list(self.workspace_upper)},
                 "max_wrist_force_n": self.max_wrist_force_n}

@@ -24,13 +24,13 @@ they would wait for a frame that the loop itself has to dispatch.
 from __future__ import annotations
 
 import asyncio
-import dataclasses
 import math
 import time
 from collections.abc import Callable, Mapping
 from typing import ClassVar, TypeVar
 
 import can
+import msgspec
 
 from assurance.reasons import ReasonCode
 from drivers.base import (
@@ -108,7 +108,7 @@ class CiA402Driver(Driver):
     @classmethod
     def from_settings(cls, settings: CiA402Settings, name: str | None = None) -> CiA402Driver:
         """The drives' errors name them by ``settings.name``: ``name`` replaces it."""
-        return cls(settings if name is None else dataclasses.replace(settings, name=name))
+        return cls(settings if name is None else msgspec.structs.replace(settings, name=name))
 
     @property
     def cycle(self) -> BusCycle | None:

@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass
-from typing import Any
+from typing import Annotated, Any
+
+from msgspec import Meta
 
 from drivers.canopen402.udp_bus import check_group
 from drivers.canopen402.units import (
@@ -16,22 +17,23 @@ from drivers.canopen402.units import (
     GripperScale,
     JointScale,
 )
-from drivers.settings import settings_from_mapping
+from drivers.settings import Settings, read_table
 
 COUNTS_PER_REV_RANGE = (1, 2**31)
 GEAR_RATIO_RANGE = (0.001, 10_000.0)
 """Motor turns per joint turn: strain-wave and cycloidal gears reach a few hundred."""
 BITRATE_RANGE = (10_000, 1_000_000)
 """Classic CAN (CiA 301's bit rates run from 10 kbit/s to 1 Mbit/s)."""
-TIMEOUT_MAX: dict[str, float] = {
-    "heartbeat_timeout_ms": 60_000, "tpdo_timeout_ms": 60_000, "sdo_timeout_s": 60.0,
-    "boot_timeout_s": 60.0, "state_timeout_s": 60.0, "call_timeout_s": 60.0,
-}
+NodeId = Annotated[int, Meta(ge=1, le=127)]
+"""A CANopen node id."""
+Unsigned16 = Annotated[int, Meta(ge=1, le=0xFFFF)]
+"""A time in ms a drive keeps in an UNSIGNED16 object (0x1016, 0x1017)."""
+TimeoutMs = Annotated[int, Meta(gt=0, le=60_000)]
+TimeoutS = Annotated[float, Meta(gt=0.0, le=60.0)]
 """Every timeout is finite and at most a minute: a drive silent longer is not coming back."""
 
 
-@dataclass(frozen=True, slots=True)
-class CiA402Settings:
+class CiA402Settings(Settings, frozen=True):
     """One CAN bus with one CiA 402 drive per joint, in joint order.
 
     ``interface``/``channel`` are python-can's (``socketcan``/``can0`` on a robot PC,
@@ -44,54 +46,59 @@ class CiA402Settings:
 
     interface: str
     channel: str
-    node_ids: tuple[int, ...]
-    counts_per_rev: tuple[float, ...]
+    node_ids: tuple[NodeId, ...]
+    counts_per_rev: tuple[Annotated[float, Meta(ge=COUNTS_PER_REV_RANGE[0],
+                                                le=COUNTS_PER_REV_RANGE[1])], ...]
+    """A whole number of counts per motor turn; at most 2**31: a joint turn must fit the
+    drive's INTEGER32 position."""
     direction: tuple[int, ...] = ()
-    offset_counts: tuple[int, ...] = ()
-    gear_ratio: tuple[float, ...] = ()
+    offset_counts: tuple[Annotated[int, Meta(ge=INT32_MIN, le=INT32_MAX)], ...] = ()
+    gear_ratio: tuple[Annotated[float, Meta(ge=GEAR_RATIO_RANGE[0],
+                                            le=GEAR_RATIO_RANGE[1])], ...] = ()
     name: str = "canopen402"
-    udp_port: int = 43113
+    udp_port: Annotated[int, Meta(ge=1, le=0xFFFF)] = 43113
     """Only for ``udp_multicast``: the bus is the group (``channel``) and this port; buses on one
     port with different groups are kept apart (``udp_bus.confine_to_host``)."""
-    bitrate: int = 1_000_000
+    bitrate: Annotated[int, Meta(ge=BITRATE_RANGE[0], le=BITRATE_RANGE[1])] = 1_000_000
     eds_path: str = ""
     """The drives' EDS; empty: the generic CSP drive EDS shipped with this driver."""
-    heartbeat_period_ms: int = 50
+    heartbeat_period_ms: Unsigned16 = 50
     """Written to each drive's 0x1017 (producer heartbeat time)."""
-    heartbeat_timeout_ms: int = 250
+    heartbeat_timeout_ms: TimeoutMs = 250
     """Consumer side: a drive silent this long is LINK_LOST."""
-    master_node_id: int = 127
+    master_node_id: NodeId = 127
     """warden's own node id on the bus: its heartbeat is COB-ID 0x700 + this. Not a drive's."""
-    master_heartbeat_ms: int = 10
+    master_heartbeat_ms: Unsigned16 = 10
     """warden's heartbeat producer time: while the drives watch it, the control loop's writes
     send it, at most this often (every ⌈time / period⌉ periods)."""
-    watchdog_ms: int = 300
+    watchdog_ms: Annotated[int, Meta(ge=0, le=0xFFFF)] = 300
     """Each drive's consumer time for warden's heartbeat (0x1016): a drive that misses it this
     long reacts as 0x6007 says (the joints quick-stop and hold, the gripper keeps its grip).
     Armed right before the loop's first tick, removed on deactivate; 0 switches it off.
     300, not 100: on the shared test machine the control loop stalls 105-245 ms a few times a
     run, and a CSP drive holds the last setpoint meanwhile. See docs/operations.md,
     "Device-side watchdogs"."""
-    tpdo_timeout_ms: int = 200
+    tpdo_timeout_ms: TimeoutMs = 200
     """No TPDO from a drive for this long while the bus cycle runs: WATCHDOG."""
-    sdo_timeout_s: float = 0.3
-    boot_timeout_s: float = 2.0
+    sdo_timeout_s: TimeoutS = 0.3
+    boot_timeout_s: TimeoutS = 2.0
     """How long connect waits for a drive's first heartbeat after enabling it."""
-    state_timeout_s: float = 1.0
+    state_timeout_s: TimeoutS = 1.0
     """How long a drive may take to follow a 402 state change or a mode switch."""
-    call_timeout_s: float = 10.0
+    call_timeout_s: TimeoutS = 10.0
     """Deadline of each blocking step (bring-up, state changes) on the device thread."""
     reset_faults_on_connect: bool = False
     """Clear a drive's latched FAULT at connect; otherwise connect refuses a faulted drive."""
-    gripper_node: int | None = None
+    gripper_node: NodeId | None = None
     """Node id of the gripper drive; None: this arm has no gripper on the bus."""
-    gripper_counts_per_m: float = GRIPPER_COUNTS_PER_M
+    gripper_counts_per_m: Annotated[float, Meta(gt=0.0)] = GRIPPER_COUNTS_PER_M
     """Gripper position counts per metre of opening. The default, one count per micrometre, is
     far finer than grasping needs (the cell's 20 mm peg has 0.75 mm of clearance per side in its
     hole) and the whole 0.085 m stroke is 85 000 counts, far inside INTEGER32; it is also the
     emulator's default. A real gripper drive: set its own scale here."""
 
     def __post_init__(self) -> None:
+        super().__post_init__()
         _check_node_ids(self.node_ids)
         self._check_gripper()
         joints = len(self.node_ids)
@@ -103,51 +110,22 @@ class CiA402Settings:
         self._check_scales()
         if any(d not in (-1, 1) for d in self.direction):
             raise ValueError("direction values must be 1 or -1")
-        if not 0 < self.heartbeat_period_ms < self.heartbeat_timeout_ms:
+        if not self.heartbeat_period_ms < self.heartbeat_timeout_ms:
             raise ValueError("need 0 < heartbeat_period_ms < heartbeat_timeout_ms")
-        if self.heartbeat_period_ms > 0xFFFF:
-            raise ValueError("heartbeat_period_ms does not fit 0x1017 (UNSIGNED16)")
-        for key, high in TIMEOUT_MAX.items():
-            value = getattr(self, key)
-            if not (math.isfinite(value) and 0 < value <= high):  # NaN fails too
-                raise ValueError(f"{key} must be a finite timeout above 0 and at most {high:g}, "
-                                 f"got {value}")
-        if not BITRATE_RANGE[0] <= self.bitrate <= BITRATE_RANGE[1]:
-            raise ValueError(f"bitrate must be within {BITRATE_RANGE[0]}..{BITRATE_RANGE[1]} "
-                             f"bit/s (classic CAN), got {self.bitrate}")
-        if not 1 <= self.udp_port <= 0xFFFF:
-            raise ValueError(f"udp_port must be within 1..65535, got {self.udp_port}")
         self._check_watchdog()
         if self.interface == "udp_multicast" and (problem := check_group(self.channel)):
             raise ValueError(f"channel: {problem}")
 
     def _check_scales(self) -> None:
-        low, high = COUNTS_PER_REV_RANGE
         for i, counts in enumerate(self.counts_per_rev):
-            if not (math.isfinite(counts) and counts == int(counts) and low <= counts <= high):
-                raise ValueError(f"counts_per_rev[{i}] must be a whole number of counts within "
-                                 f"{low}..{high} (2**31: a joint turn must fit the drive's "
-                                 f"INTEGER32 position), got {counts}")
-        for i, offset in enumerate(self.offset_counts):
-            if not INT32_MIN <= offset <= INT32_MAX:
-                raise ValueError(f"offset_counts[{i}] must be an INTEGER32 position "
-                                 f"({INT32_MIN}..{INT32_MAX}), got {offset}")
-        low_gear, high_gear = GEAR_RATIO_RANGE
-        for i, gear in enumerate(self.gear_ratio):
-            if not (math.isfinite(gear) and low_gear <= gear <= high_gear):
-                raise ValueError(f"gear_ratio[{i}] must be a finite ratio within "
-                                 f"{low_gear:g}..{high_gear:g}, got {gear}")
+            if counts != int(counts):
+                raise ValueError(f"counts_per_rev[{i}] must be a whole number of counts, got "
+                                 f"{counts}")
 
     def _check_watchdog(self) -> None:
-        if not 1 <= self.master_node_id <= 127 or self.master_node_id in self.drive_ids:
-            raise ValueError(f"master_node_id must be within 1..127 and not a drive's node id, "
-                             f"got {self.master_node_id}")
-        if not 0 < self.master_heartbeat_ms <= 0xFFFF:
-            raise ValueError(f"master_heartbeat_ms must be within 1..65535, got "
-                             f"{self.master_heartbeat_ms}")
-        if not 0 <= self.watchdog_ms <= 0xFFFF:
-            raise ValueError(f"watchdog_ms must be within 0..65535 (0x1016 keeps 16 bits of "
-                             f"milliseconds; 0: off), got {self.watchdog_ms}")
+        if self.master_node_id in self.drive_ids:
+            raise ValueError(f"master_node_id must not be a drive's node id, got "
+                             f"{self.master_node_id}")
 
     def heartbeat_interval_s(self, period_s: float) -> float:
         """How far apart warden's heartbeats go out at this control period: the first write at
@@ -171,15 +149,9 @@ class CiA402Settings:
                 "heartbeat would stop the arm; raise it or lower master_heartbeat_ms")
 
     def _check_gripper(self) -> None:
-        if self.gripper_node is not None:
-            if not 1 <= self.gripper_node <= 127:
-                raise ValueError(f"gripper_node must be within 1..127, got {self.gripper_node}")
-            if self.gripper_node in self.node_ids:
-                raise ValueError(f"gripper_node {self.gripper_node} is also in node_ids: the "
-                                 "gripper needs a drive of its own")
-        if not (math.isfinite(self.gripper_counts_per_m) and self.gripper_counts_per_m > 0):
-            raise ValueError(f"gripper_counts_per_m must be a positive number, got "
-                             f"{self.gripper_counts_per_m}")
+        if self.gripper_node is not None and self.gripper_node in self.node_ids:
+            raise ValueError(f"gripper_node {self.gripper_node} is also in node_ids: the "
+                             "gripper needs a drive of its own")
         if GRIPPER_STROKE_M * self.gripper_counts_per_m > INT32_MAX:
             raise ValueError(f"gripper_counts_per_m = {self.gripper_counts_per_m} puts the "
                              f"{GRIPPER_STROKE_M} m stroke outside the drive's INTEGER32 "
@@ -200,7 +172,7 @@ class CiA402Settings:
 
     @classmethod
     def from_mapping(cls, table: Mapping[str, Any], where: str = "canopen402") -> CiA402Settings:
-        return settings_from_mapping(cls, table, where)
+        return read_table(cls, table, where)
 
     def joint_scales(self) -> tuple[JointScale, ...]:
         joints = len(self.node_ids)
@@ -228,8 +200,6 @@ class CiA402Settings:
 def _check_node_ids(node_ids: tuple[int, ...]) -> None:
     if not node_ids:
         raise ValueError("node_ids is empty")
-    if any(not 1 <= n <= 127 for n in node_ids):
-        raise ValueError("node ids must be within 1..127")
     if len(set(node_ids)) != len(node_ids):
         raise ValueError("node ids must be unique")
 

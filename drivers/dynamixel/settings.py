@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import math
 import os
-from dataclasses import dataclass
+from typing import Annotated
+
+from msgspec import Meta
 
 from drivers.dynamixel.tables import (
     BAUD_RATES,
@@ -13,6 +15,7 @@ from drivers.dynamixel.tables import (
     GOAL_CURRENT_MAX_UNITS,
     POSITION_MODE_TICKS,
 )
+from drivers.settings import Settings
 
 SIX_SERVO_ARM_IDS = (1, 2, 3, 4, 5, 6)
 GRIPPER_MAX_OPENING_M = 0.085
@@ -23,59 +26,57 @@ has (its ticks span one turn around the centre)."""
 MAX_RETRIES = 10
 MAX_WATCHDOG_PERIODS = 10_000
 """A generous cap; the exact one (127 units of 20 ms) needs the control period (configure)."""
-RANGES: dict[str, tuple[float, float]] = {
-    "latency_budget_ms": (0.0, 1000.0),
-    "call_timeout_s": (0.0, 60.0),
-    "current_unit_ma": (0.01, 100.0),
-    "torque_per_amp_nm": (0.0, 100.0),
-}
-"""(low, high]: every float setting is finite, above ``low`` and at most ``high``. A second of
-packet latency is a broken adapter; a device call over a minute is a hung one; the X series
-counts 1 to 2.69 mA per current unit and 1 to 3 N·m per ampere."""
+ServoId = Annotated[int, Meta(ge=0, le=252)]
+Tick = Annotated[int, Meta(ge=POSITION_MODE_TICKS[0], le=POSITION_MODE_TICKS[1])]
+"""A position-mode Goal/Present Position."""
+
+# Every float setting is finite, above its low bound and at most its high one: a second of
+# packet latency is a broken adapter; a device call over a minute is a hung one; the X series
+# counts 1 to 2.69 mA per current unit and 1 to 3 N·m per ampere.
 
 
-@dataclass(frozen=True, slots=True)
-class DynamixelSettings:
+class DynamixelSettings(Settings, frozen=True):
     port: str
     """Serial device of the adapter (``/dev/ttyUSB0``, ``/dev/serial/by-id/...``, a pty)."""
     baud: int = 1_000_000
     """Must be in dynamixel_sdk's fixed list and match every servo's Baud Rate (address 8)."""
-    ids: tuple[int, ...] = SIX_SERVO_ARM_IDS
+    ids: tuple[ServoId, ...] = SIX_SERVO_ARM_IDS
     """Servo id of each joint, in joint order."""
-    offsets_rad: tuple[float, ...] = (0.0,) * len(SIX_SERVO_ARM_IDS)
+    offsets_rad: tuple[Annotated[float, Meta(ge=-OFFSET_MAX_RAD, le=OFFSET_MAX_RAD)], ...] = (
+        (0.0,) * len(SIX_SERVO_ARM_IDS))
     """Per joint: the shaft angle (rad from centre tick 2048) at which the joint reads zero."""
     directions: tuple[int, ...] = (1,) * len(SIX_SERVO_ARM_IDS)
     """Per joint: +1, or -1 for a servo mounted the other way round."""
-    latency_budget_ms: float = 34.0
+    latency_budget_ms: Annotated[float, Meta(gt=0.0, le=1000.0)] = 34.0
     """Added to the wire time of every packet timeout. The SDK hard-codes 34 ms (a 16 ms FTDI
     latency timer, twice, plus 2); with the latency timer set to 1 ms, 4 ms is enough."""
-    retries: int = 2
+    retries: Annotated[int, Meta(ge=0, le=MAX_RETRIES)] = 2
     """Extra attempts after a timed-out or corrupt reply before the link counts as lost."""
-    call_timeout_s: float = 1.0
+    call_timeout_s: Annotated[float, Meta(gt=0.0, le=60.0)] = 1.0
     """Deadline of one call on the device thread, retries and diagnosis included."""
     fast_sync_read: bool = True
     """Try Fast Sync Read (0x8A) first; falls back to Sync Read if the servos do not answer."""
-    current_unit_ma: float = 2.69
+    current_unit_ma: Annotated[float, Meta(gt=0.01, le=100.0)] = 2.69
     """mA per Present Current count: 2.69 on XM430/XM540, 1.0 on XL330."""
-    torque_per_amp_nm: float = 1.78
+    torque_per_amp_nm: Annotated[float, Meta(gt=0.0, le=100.0)] = 1.78
     """Torque constant used to report effort (XM430-W350 at 12 V: 4.1 N·m at 2.3 A)."""
-    gripper_id: int | None = None
+    gripper_id: ServoId | None = None
     """Servo id of the gripper (not one of ``ids``); None: this bus has no gripper."""
-    gripper_open_ticks: int = 2048
+    gripper_open_ticks: Tick = 2048
     """Goal/Present Position at the fully open opening (0.085 m). The defaults assume an XM430
     gripper assembled open at the shaft's centre tick that closes over a quarter turn (1024
     ticks, about 0.08 mm of opening per tick); they are not a vendor figure: read both ends off
     your gripper with Dynamixel Wizard and set them."""
-    gripper_closed_ticks: int = 3072
+    gripper_closed_ticks: Tick = 3072
     """Goal/Present Position at opening 0.0 m (pads touching); may be below the open ticks for a
     servo that closes the other way round. Openings map linearly between the two."""
-    gripper_current_ma: float = 300.0
+    gripper_current_ma: Annotated[float, Meta(gt=0.0)] = 300.0
     """Current the gripper squeezes with: its Goal Current in current-based position mode. A
     grasp stalls the fingers short of their goal and draws this much, not the Current Limit
     (an XM430 at 300 mA squeezes with roughly a quarter of its stall torque). Set it for the
     part: too little lets it slip, too much crushes it or trips the overload alert."""
 
-    watchdog_periods: int = 10
+    watchdog_periods: Annotated[int, Meta(ge=0, le=MAX_WATCHDOG_PERIODS)] = 10
     """Bus Watchdog (98) of every servo: they stop (and refuse goals until re-activated) when no
     instruction packet reaches them for this many control periods. Rounded up to the servo's
     20 ms unit, and never shorter than one retried packet (``latency_budget_ms`` plus a period),
@@ -83,11 +84,12 @@ class DynamixelSettings:
     the first setpoint after activation, disabled on deactivate; 0 switches it off."""
 
     def __post_init__(self) -> None:
+        super().__post_init__()
         if not self.port:
             raise ValueError("port: empty; name the serial device of the U2D2/adapter")
         if not self.ids:
             raise ValueError("ids: no servos listed")
-        if len(set(self.ids)) != len(self.ids) or not all(0 <= i <= 252 for i in self.ids):
+        if len(set(self.ids)) != len(self.ids):
             raise ValueError(f"ids: need distinct servo ids in 0..252, got {list(self.ids)}")
         for key, values in (("offsets_rad", self.offsets_rad), ("directions", self.directions)):
             if len(values) != len(self.ids):
@@ -97,26 +99,6 @@ class DynamixelSettings:
         if self.baud not in BAUD_RATES:
             raise ValueError(f"baud: {self.baud} is not a rate both dynamixel_sdk and the X "
                              f"series support (one of {', '.join(map(str, BAUD_RATES))})")
-        if not all(math.isfinite(o) and abs(o) <= OFFSET_MAX_RAD for o in self.offsets_rad):
-            raise ValueError(f"offsets_rad: each must be a finite shaft angle within "
-                             f"±{OFFSET_MAX_RAD:.4f} rad (one turn), got {list(self.offsets_rad)}")
-        if self.retries < 0:
-            raise ValueError(f"retries: must be >= 0, got {self.retries}")
-        if self.retries > MAX_RETRIES:
-            raise ValueError(f"retries: must be at most {MAX_RETRIES}, got {self.retries}")
-        if self.watchdog_periods < 0:
-            raise ValueError(f"watchdog_periods: must be >= 0 (0 switches the Bus Watchdog "
-                             f"off), got {self.watchdog_periods}")
-        if self.watchdog_periods > MAX_WATCHDOG_PERIODS:
-            raise ValueError(f"watchdog_periods: must be at most {MAX_WATCHDOG_PERIODS} (the "
-                             f"Bus Watchdog lasts at most 2.54 s), got {self.watchdog_periods}")
-        for key, (low, high) in RANGES.items():
-            value = getattr(self, key)
-            if not value > 0:  # also refuses NaN
-                raise ValueError(f"{key}: must be > 0, got {value}")
-            if not (math.isfinite(value) and low < value <= high):
-                raise ValueError(f"{key}: must be a finite number above {low:g} and at most "
-                                 f"{high:g}, got {value}")
         self._check_gripper()
 
     @property
@@ -147,17 +129,9 @@ class DynamixelSettings:
         return self.ids if self.gripper_id is None else (*self.ids, self.gripper_id)
 
     def _check_gripper(self) -> None:
-        if self.gripper_id is not None:
-            if not 0 <= self.gripper_id <= 252:
-                raise ValueError(f"gripper_id: must be in 0..252, got {self.gripper_id}")
-            if self.gripper_id in self.ids:
-                raise ValueError(f"gripper_id: {self.gripper_id} is also a joint in `ids` "
-                                 f"{list(self.ids)}; the gripper needs its own servo id")
-        low, high = POSITION_MODE_TICKS
-        for key in ("gripper_open_ticks", "gripper_closed_ticks"):
-            if not low <= getattr(self, key) <= high:
-                raise ValueError(f"{key}: must be a position-mode tick in {low}..{high}, "
-                                 f"got {getattr(self, key)}")
+        if self.gripper_id is not None and self.gripper_id in self.ids:
+            raise ValueError(f"gripper_id: {self.gripper_id} is also a joint in `ids` "
+                             f"{list(self.ids)}; the gripper needs its own servo id")
         ceiling_ma = (GOAL_CURRENT_MAX_UNITS + 1) * self.current_unit_ma  # before dividing
         if not (math.isfinite(self.gripper_current_ma) and 0 < self.gripper_current_ma
                 <= ceiling_ma and 0 < self.gripper_current_units <= GOAL_CURRENT_MAX_UNITS):

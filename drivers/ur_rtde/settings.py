@@ -3,12 +3,12 @@
 from __future__ import annotations
 
 import ipaddress
-import math
 from collections.abc import Mapping
-from dataclasses import dataclass
-from typing import Any
+from typing import Annotated, Any
 
-from drivers.settings import settings_from_mapping
+from msgspec import Meta
+
+from drivers.settings import Settings, read_table
 from drivers.ur_rtde import tables
 
 WATCHDOG_PERIODS_RANGE = (2, 10_000)
@@ -17,46 +17,53 @@ WATCHDOG_PERIODS_RANGE = (2, 10_000)
 FEEDBACK_MAX = 100.0
 """Bound on a gripper feedback reading: a standard analog input reads 0 to 10 V or 0.004 to
 0.02 A; anything beyond a hundred is a unit mistake (and NaN fails the comparison too)."""
+Feedback = Annotated[float, Meta(ge=-FEEDBACK_MAX, le=FEEDBACK_MAX)]
 
 
-@dataclass(frozen=True, slots=True)
-class URSettings:
+
+def _within(bounds: tuple[float, float]) -> Meta:
+    return Meta(ge=bounds[0], le=bounds[1])
+
+
+class URSettings(Settings, frozen=True):
+    """The table of one UR arm; every range is ur_rtde's own (docs/manifest.md)."""
+
     host: str
     """Controller address (the library's ports are fixed: 30004, 29999, 30003)."""
-    frequency_hz: float = 500.0
+    frequency_hz: Annotated[float, Meta(ge=1.0, le=tables.MAX_RTDE_FREQUENCY_HZ)] = 500.0
     """RTDE output frequency the driver subscribes to (at most 500 Hz on e-Series)."""
-    servo_lookahead_s: float = 0.1
+    servo_lookahead_s: Annotated[float, _within(tables.LOOKAHEAD_RANGE_S)] = 0.1
     """servoJ lookahead time: longer is smoother and lags more. ur_rtde range [0.03, 0.2]."""
-    servo_gain: float = 300.0
+    servo_gain: Annotated[float, _within(tables.GAIN_RANGE)] = 300.0
     """servoJ proportional gain. ur_rtde range [100, 2000]."""
-    servo_velocity: float = 0.5
+    servo_velocity: Annotated[float, _within(tables.JOINT_VELOCITY_RANGE)] = 0.5
     """servoJ speed argument (unused by current controllers, still range-checked [0, 3.14])."""
-    servo_acceleration: float = 0.5
+    servo_acceleration: Annotated[float, _within(tables.JOINT_ACCELERATION_RANGE)] = 0.5
     """servoJ acceleration argument (unused by current controllers, range [0, 40])."""
-    speed_acceleration: float = 0.5
+    speed_acceleration: Annotated[float, _within(tables.JOINT_ACCELERATION_RANGE)] = 0.5
     """speedJ acceleration of the leading axis, rad/s², range [0, 40]."""
-    stop_deceleration: float = 2.0
+    stop_deceleration: Annotated[float, _within(tables.JOINT_ACCELERATION_RANGE)] = 2.0
     """stopJ and speedStop deceleration of the leading axis, rad/s², range [0, 40]."""
-    servo_stop_deceleration: float = 10.0
+    servo_stop_deceleration: Annotated[float, _within(tables.TOOL_ACCELERATION_RANGE)] = 10.0
     """servoStop deceleration of the tool, m/s², range [0, 10]."""
-    connect_timeout_s: float = 5.0
+    connect_timeout_s: Annotated[float, Meta(ge=0.1, le=60.0)] = 5.0
     """Bound on the pre-flight check and on building each ur_rtde interface."""
-    call_timeout_s: float = 0.5
+    call_timeout_s: Annotated[float, Meta(ge=0.01, le=10.0)] = 0.5
     """Bound on a read or a streamed setpoint (ur_rtde's own timeouts reach 300 s)."""
-    stop_timeout_s: float = 5.0
+    stop_timeout_s: Annotated[float, Meta(ge=0.1, le=60.0)] = 5.0
     """Bound on commands that return once the arm has decelerated (stopJ, servoStop, ...)."""
-    stall_periods: int = 50
+    stall_periods: Annotated[int, Meta(ge=2, le=10_000)] = 50
     """No new RTDE timestamp for this many output periods while reading → WATCHDOG."""
-    watchdog_periods: int = 25
+    watchdog_periods: Annotated[int, Meta(ge=0, le=WATCHDOG_PERIODS_RANGE[1])] = 25
     """Controller-side RTDE watchdog (ur_rtde ``setWatchdog``): the controller stops the control
     script, and with it the arm, when no command reaches it for this many control periods
     (50 ms at 500 Hz: on a loaded 2-core test machine the loop went silent for over 20 ms
     once in a while). Armed by the first motion setpoint after activation, fed by every
     setpoint, removed on deactivate. 0 switches it off (then nothing stops the arm if warden
     dies while streaming a velocity or a far target)."""
-    reconnect_attempts: int = 2
+    reconnect_attempts: Annotated[int, Meta(ge=0, le=10)] = 2
     """Extra connect attempts after the first one fails to reach the controller."""
-    reconnect_backoff_s: float = 0.5
+    reconnect_backoff_s: Annotated[float, Meta(ge=0.0, le=10.0)] = 0.5
     gripper_output: int | None = None
     """Tool digital output (0 or 1) driving a two-finger gripper that closes while it is high;
     none: the arm has no gripper and ``Command.gripper`` is ignored. Binary: a commanded opening
@@ -64,14 +71,16 @@ class URSettings:
     gripper_feedback: str = "standard_analog_input0"
     """Analog input carrying the gripper's position signal: standard_analog_input0 or 1 (the
     tool analog inputs cannot be read through ur_rtde 1.6.5)."""
-    gripper_feedback_closed: float = 0.0
+    gripper_feedback_closed: Feedback = 0.0
     """That input's reading with the gripper closed (0 m), in the controller's unit for it
     (volts on a 0-10 V input)."""
-    gripper_feedback_open: float = 10.0
+    gripper_feedback_open: Feedback = 10.0
     """That input's reading with the gripper fully open (``gripper_max_opening_m``)."""
-    gripper_max_opening_m: float = tables.GRIPPER_MAX_OPENING_M
+    gripper_max_opening_m: Annotated[float, Meta(gt=0.0, le=0.5)] = (
+        tables.GRIPPER_MAX_OPENING_M)
 
     def __post_init__(self) -> None:
+        super().__post_init__()
         problems = _problems(self)
         if problems:
             raise ValueError("; ".join(problems))
@@ -79,7 +88,7 @@ class URSettings:
     @classmethod
     def from_mapping(cls, table: Mapping[str, Any], where: str) -> URSettings:
         """Build from a manifest table; unknown keys and bad values raise SettingsError."""
-        return settings_from_mapping(cls, table, where)
+        return read_table(cls, table, where)
 
     @property
     def rtde_period_s(self) -> float:
@@ -97,27 +106,8 @@ class URSettings:
 
 
 def _problems(s: URSettings) -> list[str]:
-    checks = [
-        ("servo_lookahead_s", s.servo_lookahead_s, tables.LOOKAHEAD_RANGE_S),
-        ("servo_gain", s.servo_gain, tables.GAIN_RANGE),
-        ("servo_velocity", s.servo_velocity, tables.JOINT_VELOCITY_RANGE),
-        ("servo_acceleration", s.servo_acceleration, tables.JOINT_ACCELERATION_RANGE),
-        ("speed_acceleration", s.speed_acceleration, tables.JOINT_ACCELERATION_RANGE),
-        ("stop_deceleration", s.stop_deceleration, tables.JOINT_ACCELERATION_RANGE),
-        ("servo_stop_deceleration", s.servo_stop_deceleration, tables.TOOL_ACCELERATION_RANGE),
-        ("frequency_hz", s.frequency_hz, (1.0, tables.MAX_RTDE_FREQUENCY_HZ)),
-        ("connect_timeout_s", s.connect_timeout_s, (0.1, 60.0)),
-        ("call_timeout_s", s.call_timeout_s, (0.01, 10.0)),
-        ("stop_timeout_s", s.stop_timeout_s, (0.1, 60.0)),
-        ("stall_periods", s.stall_periods, (2, 10_000)),
-        ("reconnect_attempts", s.reconnect_attempts, (0, 10)),
-        ("reconnect_backoff_s", s.reconnect_backoff_s, (0.0, 10.0)),
-    ]
-    problems = [
-        f"{key} = {value} is outside [{low}, {high}]"
-        for key, value, (low, high) in checks
-        if not (math.isfinite(value) and low <= value <= high)
-    ]
+    """The rules the fields' own bounds cannot say (those are checked first, one by one)."""
+    problems = []
     low, high = WATCHDOG_PERIODS_RANGE
     if s.watchdog_periods != 0 and not low <= s.watchdog_periods <= high:
         problems.append(f"watchdog_periods = {s.watchdog_periods} is neither 0 (off) nor within "
@@ -143,13 +133,9 @@ def _gripper_problems(s: URSettings) -> list[str]:
         problems.append(f"gripper_feedback = {s.gripper_feedback!r} is not one of "
                         f"{', '.join(tables.GRIPPER_FEEDBACK_INPUTS)}{hint}")
     closed, opened = s.gripper_feedback_closed, s.gripper_feedback_open
-    if not (abs(closed) <= FEEDBACK_MAX and abs(opened) <= FEEDBACK_MAX) or closed == opened:
+    if closed == opened:
         problems.append(f"gripper_feedback_closed = {closed} and gripper_feedback_open = "
-                        f"{opened} must be two different finite readings within "
-                        f"±{FEEDBACK_MAX:g}")
-    if not (math.isfinite(s.gripper_max_opening_m) and 0.0 < s.gripper_max_opening_m <= 0.5):
-        problems.append(f"gripper_max_opening_m = {s.gripper_max_opening_m} is outside "
-                        "(0, 0.5] m")
+                        f"{opened} must be two different readings")
     return problems
 
 

@@ -11,7 +11,6 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 from drivers import registry
 from drivers.base import CommandKind
@@ -21,11 +20,12 @@ from kernel.app.context import CellContext
 from kernel.app.control import ControlLoop
 from kernel.app.device import DeviceWorld, World
 from kernel.app.task import assembly_runner
+from kernel.config.kinematics import model_spec
 from kernel.core.config import CoreConfig
 from kernel.core.runtime import Core
 from kernel.manifest import Manifest, ManifestError
 from kernel.scenario.fields import Where
-from kernel.scenario.kinematics import model_spec
+from kernel.sections import ScenarioSections
 from kernel.shell.gateway import CoreGateway
 from kernel.shell.recorder import Recorder
 from kernel.shell.timer import Clock, MonotonicClock
@@ -70,27 +70,26 @@ def world_for(manifest: Manifest) -> World:
     return factory(manifest)
 
 
-def effective(manifest: Manifest, world: World) -> tuple[CoreConfig, dict[str, Any]]:
+def effective(manifest: Manifest, world: World) -> tuple[CoreConfig, ScenarioSections]:
     """The core's configuration for this world, and the sections a journal must carry to
     rebuild exactly it: the device's impedance capability, the model file's path and digest."""
     impedance = manifest.core.motion.impedance and CommandKind.IMPEDANCE in world.driver(
         ).capabilities
     motion = dataclasses.replace(manifest.core.motion, impedance=impedance)
     config = dataclasses.replace(manifest.core, initial_session=None, motion=motion)
-    sections = {**manifest.sections, "motion": {**manifest.sections.get("motion", {}),
-                                                "impedance": impedance}}
-    spec = model_spec(manifest.sections["robot"], Where(str(manifest.path), "robot"))
+    sections = manifest.sections.document()
+    sections["motion"] = {**sections.get("motion", {}), "impedance": impedance}
+    spec = model_spec(sections["robot"], Where(str(manifest.path), "robot"))
     kinematics = manifest.core.kinematics
     if spec is not None and kinematics is not None:
-        robot = {key: value for key, value in manifest.sections["robot"].items()
-                 if key != "kinematics"}
+        robot = {key: value for key, value in sections["robot"].items() if key != "kinematics"}
         # The digest of the bytes the run's model was parsed from, never a second read of a
         # file that may have changed since.
         sections["robot"] = {**robot, "model": str(spec.path), "tcp_frame": spec.tcp_frame,
                              "model_sha256": kinematics.config.sha256}
         if spec.joints is not None:
             sections["robot"]["joints"] = list(spec.joints)
-    return config, sections
+    return config, ScenarioSections.of(sections)
 
 
 def build_cell(manifest: Manifest, config: CoreConfig, world: World, clock: Clock,

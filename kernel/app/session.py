@@ -23,6 +23,7 @@ from kernel.core.config import CoreConfig
 from kernel.journal import header
 from kernel.manifest import Manifest, ManifestError
 from kernel.provenance import provenance
+from kernel.sections import ScenarioSections
 from kernel.shell.device_lock import note_run_directory
 from kernel.shell.heartbeat import HeartbeatStats
 from kernel.shell.record_file import RecordFile, open_run_files
@@ -81,7 +82,7 @@ class RunContext:
     cell: Cell
     recorder: Recorder
     files: RunFiles
-    sections: dict[str, Any]
+    sections: ScenarioSections
     """The sections the journal's header carries (what rebuilds this run's core exactly)."""
     summary: RunSummary = field(default_factory=RunSummary)
     lateness_ns: list[int] = field(default_factory=list)
@@ -115,7 +116,7 @@ def open_run(manifest: Manifest, clock: Clock, journal_dir: Path | None,
     recorder: Recorder | None = None
     try:
         config, sections = effective(manifest, world)
-        head = {**header(sections, manifest.name),
+        head = {**header(sections.document(), manifest.name),
                 "provenance": provenance(manifest.digest, manifest.path, manifest.signer)}
         recorder = _recorder(files, head)
         cell = build_cell(manifest, config, world, clock, recorder)

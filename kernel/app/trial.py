@@ -32,12 +32,13 @@ from kernel import signing
 from kernel.app.device import driver_from_manifest
 from kernel.app.session import RunContext
 from kernel.app.trial_limits import check_envelope
+from kernel.config.build import build_config
+from kernel.config.kinematics import model_spec
 from kernel.manifest import Manifest, ManifestError, TrialEnvelope, load_manifest
 from kernel.robot_model import digest
 from kernel.safety.status import ask
-from kernel.scenario.config import build_config
 from kernel.scenario.fields import ScenarioError, Where
-from kernel.scenario.kinematics import model_spec
+from kernel.sections import ScenarioSections
 
 ENVELOPE_KEYS = ("max_cycles", "max_duration_s", "workspace_lower", "workspace_upper",
                  "speed_scale", "max_wrist_force_n")
@@ -83,7 +84,7 @@ def _signed_model(manifest: Manifest) -> None:
     Raises:
         ManifestError: a model without ``robot.model_sha256`` (the message gives the digest).
     """
-    robot = manifest.sections["robot"]
+    robot = manifest.sections.table("robot")
     where = Where(str(manifest.path), "robot")
     try:
         spec = model_spec(robot, where)
@@ -129,17 +130,17 @@ def device_watchdog(manifest: Manifest) -> str:
 
 
 def _bounded(manifest: Manifest, envelope: TrialEnvelope) -> Manifest:
-    robot = dict(manifest.sections["robot"])
+    scenario = manifest.sections.document()
+    robot = scenario["robot"]
     robot["velocity_limits"] = [round(v * envelope.speed_scale, 12) for v in
                                 arm_velocities(manifest)]
-    scenario = {**manifest.sections, "robot": robot}
     try:  # the velocities scaled, the envelope given typed (not read back from its section)
         core = build_config(scenario, Where(str(manifest.path), ""), envelope.bounds())
     except ScenarioError as error:
         raise ManifestError(str(error)) from None
     cell = msgspec.structs.replace(manifest.cell,
                                    cycles=min(manifest.cell.cycles, envelope.max_cycles))
-    sections = {**scenario, "envelope": envelope.section()}  # the journal's header
+    sections = ScenarioSections.of({**scenario, "envelope": envelope.section()})
     return dataclasses.replace(manifest, core=core, sections=sections, cell=cell)
 
 

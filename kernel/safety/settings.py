@@ -8,17 +8,24 @@ limit nobody chose is no limit): see docs/manifest.md, "[safety]".
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass
 from pathlib import Path
+from typing import Annotated
+
+from msgspec import Meta
+
+from drivers.settings import Settings
+from kernel.scenario.bounds import FORCE_MAX_N
 
 DEFAULT_DIRECTORY = "/run/warden-safety"
 """The monitor's runtime directory under systemd (``RuntimeDirectory=warden-safety``)."""
 HEARTBEAT_NAME, STATUS_NAME = "heartbeat.sock", "status.sock"
 
 
-@dataclass(frozen=True, slots=True)
-class SafetySettings:
+Ms = Annotated[float, Meta(ge=10.0, le=10_000.0)]
+"""A timeout or an interval of the monitor, ms."""
+
+
+class SafetySettings(Settings, frozen=True, kw_only=True):
     heartbeat_socket: str = ""
     """The Unix datagram socket the monitor binds and warden's control loop sends to; empty:
     ``/run/warden-safety/heartbeat.sock``."""
@@ -28,35 +35,36 @@ class SafetySettings:
     group: str = ""
     """The group that may send heartbeats and ask for status (both sockets are 0660 to it);
     empty: the monitor's own group (``Group=warden`` in its unit)."""
-    heartbeat_periods: int = 5
+    heartbeat_periods: Annotated[int, Meta(ge=1, le=1000)] = 5
     """warden sends one heartbeat every this many completed control ticks."""
-    heartbeat_timeout_ms: float = 200.0
+    heartbeat_timeout_ms: Ms = 200.0
     """No heartbeat for this long (sender's clock, the same CLOCK_MONOTONIC) and the monitor
     stops the arm."""
-    closing_timeout_ms: float = 10_000.0
+    closing_timeout_ms: Annotated[float, Meta(ge=100.0, le=120_000.0)] = 10_000.0
     """After warden says its loop ended (CLOSING), how long it may take to hold the arm and
     close the device before it must say END; longer counts as a lost heartbeat."""
-    check_period_ms: float = 4.0
+    check_period_ms: Annotated[float, Meta(ge=1.0, le=100.0)] = 4.0
     """How often the monitor reads the device and checks everything."""
-    device_timeout_ms: float = 250.0
+    device_timeout_ms: Ms = 250.0
     """The device's data older than this (or unanswered) counts as the device lost."""
-    position_margin_rad: float = 0.02
+    position_margin_rad: Annotated[float, Meta(ge=0.0, le=0.5)] = 0.02
     """Allowance beyond each joint's position limit before a breach (measured overshoot)."""
-    velocity_margin: float = 0.1
+    velocity_margin: Annotated[float, Meta(ge=0.0, le=1.0)] = 0.1
     """Allowance beyond each joint's velocity limit, as a fraction of it (0.1: 110 %)."""
-    moving_rad_s: float = 0.05
+    moving_rad_s: Annotated[float, Meta(ge=0.001, le=1.0)] = 0.05
     """A joint faster than this is moving: motion with no warden heartbeat is a breach, and a
     breach that persists while the arm moves is stopped again."""
-    restop_interval_ms: float = 500.0
+    restop_interval_ms: Annotated[float, Meta(ge=10.0, le=60_000.0)] = 500.0
     """How soon a stop is repeated while a breach persists and the arm still moves."""
-    max_wrist_force_n: float | None = None
+    max_wrist_force_n: Annotated[float, Meta(gt=0.0, le=FORCE_MAX_N)] | None = None
     """Largest force (norm of Fx, Fy, Fz at the wrist sensor, N) before the monitor stops the
     arm. Required by the monitor for a device whose wrist sensor it reads (ur_rtde, sim)."""
-    sim_port: int = 0
+    sim_port: Annotated[int, Meta(ge=0, le=65535)] = 0
     """Simulation only (driver ``sim``): the loopback TCP port of the simulated world's
     test-only control port (its ground truth and a brake); 0: not served."""
 
     def __post_init__(self) -> None:
+        super().__post_init__()
         problems = _problems(self)
         if problems:
             raise ValueError("; ".join(problems))
@@ -79,24 +87,8 @@ class SafetySettings:
 
 
 def _problems(s: SafetySettings) -> list[str]:
-    ranges = [
-        ("heartbeat_periods", s.heartbeat_periods, 1, 1000),
-        ("heartbeat_timeout_ms", s.heartbeat_timeout_ms, 10.0, 10_000.0),
-        ("closing_timeout_ms", s.closing_timeout_ms, 100.0, 120_000.0),
-        ("check_period_ms", s.check_period_ms, 1.0, 100.0),
-        ("device_timeout_ms", s.device_timeout_ms, 10.0, 10_000.0),
-        ("position_margin_rad", s.position_margin_rad, 0.0, 0.5),
-        ("velocity_margin", s.velocity_margin, 0.0, 1.0),
-        ("moving_rad_s", s.moving_rad_s, 0.001, 1.0),
-        ("restop_interval_ms", s.restop_interval_ms, 10.0, 60_000.0),
-        ("sim_port", s.sim_port, 0, 65535),
-    ]
-    problems = [f"{key} = {value} is outside [{low}, {high}]"
-                for key, value, low, high in ranges
-                if not (math.isfinite(value) and low <= value <= high)]
-    force = s.max_wrist_force_n
-    if force is not None and not (math.isfinite(force) and force > 0):
-        problems.append(f"max_wrist_force_n = {force} must be a positive number of newtons")
+    """The rules across fields (each field's own range is on the field)."""
+    problems = []
     if s.heartbeat_timeout_ms < 2 * s.check_period_ms:
         problems.append(f"heartbeat_timeout_ms = {s.heartbeat_timeout_ms} must be at least two "
                         f"check periods ({2 * s.check_period_ms} ms)")

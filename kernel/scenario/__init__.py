@@ -1,6 +1,8 @@
 """Scenario files and run journals (docs/contract.md §7): load, validate, turn into core inputs.
 
-The loader is :mod:`kernel.scenario.load`. This package imports nothing itself, so a reader of
-its leaf modules (``fields``, ``bounds``, ``document``: the safety monitor's view of a manifest
-among them) does not load the core with it.
+The loader is :mod:`kernel.scenario.load` (with the events of :mod:`kernel.scenario.events`);
+the sections a scenario shares with a manifest are built into the core's configuration by
+:mod:`kernel.config`. The leaf readers here (``fields``, ``bounds``, ``document``) are shared by
+every file reader, the safety monitor's view of a manifest among them. This package imports
+nothing itself, so a reader of a leaf does not load the core with it.
 """

@@ -21,6 +21,7 @@ from assurance.event_chunk import decode_event_chunk
 from assurance.handshake import offer_in
 from assurance.limits import JointLimits
 from assurance.reasons import ReasonCode
+from kernel.config.session import state_vector
 from kernel.core.effects import Motion
 from kernel.core.events import (
     CONTROLLER_STATUSES,
@@ -64,7 +65,6 @@ from kernel.scenario.fields import (
     text,
     vector,
 )
-from kernel.scenario.session import state_vector
 from skills.phases import TaskPhase
 from skills.task_fsm import Requester
 

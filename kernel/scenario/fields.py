@@ -10,67 +10,27 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
 from typing import Any
+
+from drivers import settings
+from drivers.settings import SHOWN_CHARS, SettingsError, one_line, printable, shown
 
 MAX_MAGNITUDE = 1e13
 """No field is legitimately this large (as milliseconds: three centuries); larger values
 overflow the integer-nanosecond clock, so they are refused here with the field named."""
-SHOWN_CHARS = 60
-"""A value quoted in a message is cut to this many characters."""
 
 
-class ScenarioError(ValueError):
+class ScenarioError(SettingsError):
     """A file that is not a valid scenario; ``str()`` names the file, the place and the field."""
 
 
-@dataclass(frozen=True, slots=True)
-class Where:
-    file: str
-    path: str
+class Where(settings.Where):
+    """A place in a scenario or a manifest; its errors are :class:`ScenarioError`."""
 
-    def at(self, key: str | int) -> Where:
-        if isinstance(key, int):
-            part = f"[{key}]"
-        else:
-            name = printable(key)
-            part = f".{name}" if self.path else name
-        return Where(self.file, f"{self.path}{part}")
-
-    def note(self, text: str) -> Where:
-        """The same place with a note, e.g. an event's kind: ``events[3] (state)``."""
-        return Where(self.file, f"{self.path} ({printable(text)})")
+    __slots__ = ()
 
     def error(self, message: str) -> ScenarioError:
-        place = f"{self.path}: " if self.path else ""
-        return ScenarioError(f"{self.file}: {place}{one_line(message)}")
-
-
-def one_line(text: str) -> str:
-    """``text`` with every unprintable character escaped (a message quoting a file's text, a
-    model path with a newline, stays one line)."""
-    if text.isprintable():
-        return text
-    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
-
-
-def printable(name: str) -> str:
-    """A key as it appears in a place: as written when it is plain text, quoted with escapes
-    when it holds a newline or another unprintable character (a message stays one line), cut
-    short when long."""
-    text = name if name.isprintable() else repr(name)
-    return text if len(text) <= SHOWN_CHARS else f"{text[:SHOWN_CHARS]}..."
-
-
-def shown(value: Any) -> str:
-    """``repr(value)`` cut short, safe for any value a parser can produce."""
-    if isinstance(value, int) and not isinstance(value, bool) and value.bit_length() > 64:
-        try:
-            return f"an integer of {len(str(abs(value)))} digits"
-        except ValueError:  # beyond the interpreter's digit limit for int-to-text conversion
-            return f"an integer of about {int(value.bit_length() * math.log10(2)) + 1} digits"
-    text = repr(value)
-    return text if len(text) <= SHOWN_CHARS else f"{text[:SHOWN_CHARS]}..."
+        return ScenarioError(self.message(message))
 
 
 def is_number(value: Any) -> bool:
@@ -202,3 +162,8 @@ def vector(
         if bound is not None and math.isfinite(item) and abs(item) > bound:
             raise where.at(index).error(f"must be within ±{bound:g}, got {shown(item)}")
     return [float(v) for v in value]
+
+
+__all__ = ["MAX_MAGNITUDE", "SHOWN_CHARS", "ScenarioError", "Where", "choice", "flag",
+           "in_range", "integer", "is_number", "mapping", "number", "one_line", "printable",
+           "shown", "text", "vector"]

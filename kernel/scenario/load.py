@@ -23,10 +23,10 @@ from pathlib import Path
 from typing import Any
 
 from assurance.clock import ms_to_ns
+from kernel.config.build import build_config
 from kernel.core.config import CoreConfig
 from kernel.core.events import TickEvent
 from kernel.scenario.bounds import TICKS_MAX, UNTIL_MAX_MS
-from kernel.scenario.config import build_config
 from kernel.scenario.document import check_document, decoded, parse_json, read_bytes
 from kernel.scenario.events import Item, parse_events
 from kernel.scenario.fields import ScenarioError, Where, number, text

@@ -25,7 +25,6 @@ import signal
 import struct
 import subprocess
 import sys
-from collections.abc import Mapping
 from typing import Any
 
 import msgspec
@@ -33,6 +32,7 @@ import msgspec
 from kernel.core.effects import Compute
 from kernel.core.events import ComputedEvent
 from kernel.core.jobs import Job, JobFailed, JobResult, run_job
+from kernel.sections import ScenarioSections
 from kernel.shell.gateway import CoreGateway
 from kernel.shell.realtime import children_at_ordinary_priority
 
@@ -60,13 +60,13 @@ class InlineJobs:
 
 
 class JobWorker:
-    def __init__(self, gateway: CoreGateway, sections: Mapping[str, Any], source: str,
+    def __init__(self, gateway: CoreGateway, sections: ScenarioSections, source: str,
                  max_in_flight: int = 8) -> None:
         self.gateway = gateway
         self.max_in_flight = max_in_flight
         self.in_flight: set[int] = set()
         self.done = self.failed = 0
-        self._init = json.dumps({"sections": dict(sections), "source": source}).encode()
+        self._init = json.dumps({"sections": sections.document(), "source": source}).encode()
         self._process: subprocess.Popen[bytes] | None = None
         self._buffer = bytearray()
         self._ended = asyncio.Event()
@@ -211,7 +211,7 @@ def _read_frame(stream: Any) -> bytes | None:
 def main() -> int:
     """The worker: build the configuration, then answer jobs until stdin closes."""
     _die_with_parent()
-    from kernel.scenario.config import build_config
+    from kernel.config.build import build_config
     from kernel.scenario.fields import Where
 
     stdin, stdout = sys.stdin.buffer, sys.stdout.buffer

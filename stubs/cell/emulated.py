@@ -9,10 +9,11 @@ test-only control port (see :mod:`stubs.plant.world_port`), never over the robot
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
+
+import msgspec
 
 from drivers.base import Driver, DriverInitError
 from kernel.app.device import driver_from_manifest
@@ -124,7 +125,7 @@ class EmulatorWorld:
         ready = self.process.info
         port = ready.get("control_port", ready.get("fault_port"))
         self.control = (launch.control_host(ready), int(port))
-        settings = dataclasses.replace(manifest.driver_settings, **launch.settings(ready))
+        settings = msgspec.structs.replace(manifest.driver_settings, **launch.settings(ready))
         try:
             self._driver = driver_from_manifest(manifest, settings)
         except ManifestError:

@@ -28,7 +28,7 @@ POLICY_ACCELERATION = 3.0
 
 def offer_for(manifest: Manifest) -> HandshakeOffer:
     """The reference server's offer: exactly what this manifest's session accepts."""
-    session = manifest.sections["session"]
+    session = manifest.sections.table("session")
     return HandshakeOffer(
         policy_checkpoint=session["policy_checkpoint"], config_hash=session["config_hash"],
         observation_keys=tuple(session.get("observation_keys", ())),

@@ -7,6 +7,7 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
+import msgspec
 import pytest
 
 from kernel.manifest import Manifest, ManifestError
@@ -17,7 +18,7 @@ from tests.cell.harness import manifest
 def _with_driver(name: str, **settings: Any) -> Manifest:
     loaded = manifest(name)
     return dataclasses.replace(
-        loaded, driver_settings=dataclasses.replace(loaded.driver_settings, **settings))
+        loaded, driver_settings=msgspec.structs.replace(loaded.driver_settings, **settings))
 
 
 def _args(loaded: Manifest) -> tuple[str, ...]:
@@ -43,7 +44,7 @@ def test_the_ur_gripper_wiring_reaches_the_emulator() -> None:
 
 def test_no_gripper_no_flags() -> None:
     loaded = manifest("sim-ur5e-rtde.toml")
-    settings = dataclasses.replace(loaded.driver_settings, gripper_output=None)
+    settings = msgspec.structs.replace(loaded.driver_settings, gripper_output=None)
     assert not any(a.startswith("--gripper") for a in _args(
         dataclasses.replace(loaded, driver_settings=settings)))
 

@@ -47,8 +47,8 @@ def test_the_example_is_a_real_device_manifest_with_everything_a_trial_needs() -
     assert manifest.safety.max_wrist_force_n is not None
     assert manifest.trial is not None
     assert manifest.driver_settings.watchdog_periods > 0  # the controller's watchdog on
-    assert manifest.sections["timing"]["state_timeout_ms"] > 0  # warden's state watchdog
-    assert manifest.sections["robot"]["model_sha256"] == digest(BUILTIN["ur5e"].path)
+    assert manifest.sections.table("timing")["state_timeout_ms"] > 0  # warden's state watchdog
+    assert manifest.sections.table("robot")["model_sha256"] == digest(BUILTIN["ur5e"].path)
 
 
 def test_warden_check_accepts_the_example_against_the_emulator(tmp_path: Path) -> None:

@@ -221,7 +221,7 @@ BAD_VALUES = [
     (("hole_top = [-0.55,", "hole_top = [-1e6,"), "task.hole_top[0]"),
     (("gripper_open = 0.085", "gripper_open = 0.0"), "task.gripper_open: must exceed"),
     (("tool_rotation = [[0.0, 1.0, 0.0]", "tool_rotation = [[0.0, 1e300, 0.0]"),
-     "task.tool_rotation[0][1]: must be within ±1"),
+     "task.tool_rotation[0][1]: must be at most 1"),
     (("tool_rotation = [[0.0, 1.0, 0.0]", "tool_rotation = [[0.0, 0.9, 0.0]"),
      "task.tool_rotation: not a rotation matrix"),
     # fail closed

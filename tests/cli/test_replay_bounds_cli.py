@@ -174,7 +174,7 @@ def test_a_file_no_parser_survives_exits_2(tmp_path: Path, capsys: pytest.Captur
 def _journal_lines() -> list[str]:
     """A small hand-made journal: the shipped manifest's sections as the header, the handshake
     and a few ticks (what a live run records, shortened)."""
-    sections = load_manifest(ROOT / "manifests" / "sim-ur5e.toml").sections
+    sections = load_manifest(ROOT / "manifests" / "sim-ur5e.toml").sections.document()
     head = {"format": "warden-journal/1", "name": "handmade", **sections}
     q = sections["session"]["state"]
     events = [{"t": 0, "kind": "state", "q": q}]

@@ -94,7 +94,8 @@ CANOPEN_COUNTS = "counts_per_rev = [8388608.0, 8388608.0, 8388608.0, 8388608.0, 
 DRIVER = [
     # CiA 402: scales and timeouts
     ("sim-canopen.toml", (CANOPEN_COUNTS, "counts_per_rev = [inf, 8388608.0, 8388608.0, "
-                          "8388608.0, 8388608.0, "), "counts_per_rev[0] must be a whole number"),
+                          "8388608.0, 8388608.0, "),
+     "driver.counts_per_rev[0]: must be a finite number"),
     ("sim-canopen.toml", (CANOPEN_COUNTS, "counts_per_rev = [nan, 8388608.0, 8388608.0, "
                           "8388608.0, 8388608.0, "), "counts_per_rev[0]"),
     ("sim-canopen.toml", (CANOPEN_COUNTS, "counts_per_rev = [1e300, 8388608.0, 8388608.0, "
@@ -102,7 +103,7 @@ DRIVER = [
     ("sim-canopen.toml", (CANOPEN_COUNTS, "counts_per_rev = [4096.5, 8388608.0, 8388608.0, "
                           "8388608.0, 8388608.0, "), "counts_per_rev[0]"),
     ("sim-canopen.toml", ("sdo_timeout_s = 1.0", "sdo_timeout_s = nan"),
-     "sdo_timeout_s must be a finite timeout above 0 and at most 60"),
+     "driver.sdo_timeout_s: must be a finite number of at most 60, got nan"),
     ("sim-canopen.toml", ("sdo_timeout_s = 1.0", "sdo_timeout_s = inf"), "sdo_timeout_s"),
     ("sim-canopen.toml", ("state_timeout_s = 2.0", "state_timeout_s = nan"), "state_timeout_s"),
     ("sim-canopen.toml", ("state_timeout_s = 2.0", "state_timeout_s = 1e300"), "state_timeout_s"),
@@ -139,8 +140,9 @@ DRIVER = [
      "gripper_current_ma"),
     # UR: the gripper's feedback readings, and a regression on a float already bounded
     ("sim-ur5e-rtde.toml", ("gripper_feedback_open = 10.0", "gripper_feedback_open = 1e308"),
-     "gripper_feedback_open = 1e+308 must be two different finite readings within ±100"),
-    ("sim-ur5e-rtde.toml", ("servo_gain = 600", "servo_gain = nan"), "servo_gain = nan"),
+     "driver.gripper_feedback_open: must be at most 100, got 1e+308"),
+    ("sim-ur5e-rtde.toml", ("servo_gain = 600", "servo_gain = nan"),
+     "driver.servo_gain: must be a finite number of at most 2000, got nan"),
 ]
 
 

@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 from assurance.fallback import Mode
+from kernel.config.build import build_config
 from kernel.core.effects import Retreat, Setpoint
 from kernel.core.events import InsertEvent, LinkEvent
 from kernel.core.lines import TickLine
-from kernel.scenario.config import build_config
 from kernel.scenario.fields import ScenarioError, Where
 from skills.contact import ContactState
 from tests.core.test_motion import Drive

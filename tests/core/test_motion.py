@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+from kernel.config.build import build_config
 from kernel.core.config import CoreConfig
 from kernel.core.effects import Compute, Hold, Retreat, Setpoint, Step, Stop
 from kernel.core.events import (
@@ -31,7 +32,6 @@ from kernel.core.events import (
 from kernel.core.jobs import run_job
 from kernel.core.lines import ChunkLine, MotionLine
 from kernel.core.runtime import Core
-from kernel.scenario.config import build_config
 from kernel.scenario.fields import Where
 from skills.contact import ContactState
 from skills.phases import TaskPhase

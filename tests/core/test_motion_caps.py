@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from kernel.config.build import build_config
 from kernel.core.events import InsertEvent, MoveEvent
-from kernel.scenario.config import build_config
 from kernel.scenario.fields import Where
 from skills.contact import ContactState
 from tests.core.test_motion import Drive

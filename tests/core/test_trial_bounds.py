@@ -8,12 +8,12 @@ from typing import Any
 import numpy as np
 import pytest
 
+from kernel.config.build import build_config
 from kernel.core.effects import Setpoint, Stop
 from kernel.core.events import MoveEvent, StateEvent, TickEvent
 from kernel.core.lines import TransitionLine
 from kernel.core.runtime import Core
 from kernel.robot_model import BUILTIN, load_kinematics
-from kernel.scenario.config import build_config
 from kernel.scenario.fields import ScenarioError, Where
 from tools.scenarios.base import ScenarioSpec
 

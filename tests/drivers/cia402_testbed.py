@@ -9,8 +9,9 @@ Test support, not part of the emulator: it builds driver settings too.
 from __future__ import annotations
 
 import uuid
-from dataclasses import replace
 from typing import Any
+
+import msgspec
 
 from drivers.base import ControlConfig
 from drivers.canopen402.settings import CiA402Settings
@@ -74,4 +75,4 @@ def driver_settings(interface: str, channel: str, udp_port: int = 43113,
         offset_counts=OFFSETS, sdo_timeout_s=1.0, state_timeout_s=2.0,
         watchdog_ms=TEST_WATCHDOG_MS,
     )
-    return replace(settings, **overrides)
+    return msgspec.structs.replace(settings, **overrides)

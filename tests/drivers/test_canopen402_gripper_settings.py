@@ -36,16 +36,16 @@ def test_no_gripper_by_default_and_a_micrometre_per_count() -> None:
 
 
 @pytest.mark.parametrize(("change", "message"), [
-    ({"gripper_node": 0}, "gripper_node must be within 1..127"),
-    ({"gripper_node": 128}, "gripper_node must be within 1..127"),
+    ({"gripper_node": 0}, "canopen402.gripper_node: must be at least 1, got 0"),
+    ({"gripper_node": 128}, "canopen402.gripper_node: must be at most 127, got 128"),
     ({"gripper_node": 2}, "gripper_node 2 is also in node_ids"),
     ({"gripper_node": "7"}, "canopen402.gripper_node:"),
     ({"gripper_node": True}, "canopen402.gripper_node:"),
     ({"gripper_node": 7.0}, "canopen402.gripper_node:"),
-    ({"gripper_counts_per_m": 0}, "gripper_counts_per_m must be a positive number"),
-    ({"gripper_counts_per_m": -1e6}, "gripper_counts_per_m must be a positive number"),
-    ({"gripper_counts_per_m": float("nan")}, "gripper_counts_per_m must be a positive number"),
-    ({"gripper_counts_per_m": float("inf")}, "gripper_counts_per_m must be a positive number"),
+    ({"gripper_counts_per_m": 0}, "canopen402.gripper_counts_per_m: must be positive, got 0"),
+    ({"gripper_counts_per_m": -1e6}, "canopen402.gripper_counts_per_m: must be positive"),
+    ({"gripper_counts_per_m": float("nan")}, "canopen402.gripper_counts_per_m: must be a finite"),
+    ({"gripper_counts_per_m": float("inf")}, "canopen402.gripper_counts_per_m: must be a finite"),
     ({"gripper_counts_per_m": "1e6"}, "canopen402.gripper_counts_per_m:"),
     ({"gripper_counts_per_m": 1e12}, "stroke outside the drive's INTEGER32 position range"),
     ({"gripper_id": 7}, "canopen402.gripper_id: unknown key"),

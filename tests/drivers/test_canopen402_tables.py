@@ -152,7 +152,7 @@ def test_settings_from_a_manifest_table() -> None:
     ({"counts_per_rev": [4096]}, "counts_per_rev has 1 values for 2 node ids"),
     ({"direction": [1, 2]}, "direction values must be 1 or -1"),
     ({"node_ids": [1, 1]}, "node ids must be unique"),
-    ({"node_ids": [0, 200]}, "within 1..127"),
+    ({"node_ids": [0, 200]}, r"canopen402\.node_ids\[0\]: must be at least 1, got 0"),
     ({"heartbeat_timeout_ms": 10}, "heartbeat_period_ms < heartbeat_timeout_ms"),
 ])
 def test_bad_settings_name_the_key(change: dict[str, object], message: str) -> None:

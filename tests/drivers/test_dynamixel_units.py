@@ -119,8 +119,8 @@ def test_settings_from_manifest_table() -> None:
     ({"port": "/dev/x", "ids": [1, 2]}, "offsets_rad: 6 values for 2 servo ids"),
     ({"port": "/dev/x", "directions": [1, 1, 1, 1, 1, 0]}, "directions: each must be 1 or -1"),
     ({"port": "/dev/x", "ids": [1, 1, 2, 3, 4, 5]}, "ids: need distinct servo ids"),
-    ({"port": "/dev/x", "retries": -1}, "retries: must be >= 0"),
-    ({"port": "/dev/x", "latency_budget_ms": 0}, "latency_budget_ms: must be > 0"),
+    ({"port": "/dev/x", "retries": -1}, "drivers.arm.retries: must be at least 0, got -1"),
+    ({"port": "/dev/x", "latency_budget_ms": 0}, "arm.latency_budget_ms: must be positive"),
     ({"port": "/dev/x", "baudrate": 57600}, "drivers.arm.baudrate: unknown key"),
     ({"baud": 57600}, "drivers.arm.port: required key is missing"),
 ])

@@ -165,7 +165,7 @@ def test_watchdog_units(periods: int, period_s: float, budget_ms: float, units: 
 def test_a_watchdog_beyond_127_units_is_refused_with_the_key() -> None:
     with pytest.raises(ValueError, match="watchdog_periods: 400 periods"):
         DynamixelSettings(port="/dev/null", watchdog_periods=400).watchdog_units(0.008)
-    with pytest.raises(ValueError, match="watchdog_periods: must be >= 0"):
+    with pytest.raises(ValueError, match="watchdog_periods: must be at least 0, got -1"):
         DynamixelSettings(port="/dev/null", watchdog_periods=-1)
 
 

@@ -42,9 +42,9 @@ def test_manifest_table_with_a_gripper() -> None:
     ("gripper_feedback", "tool_analog_input0", r"gripper_feedback.*cannot read the tool analog"),
     ("gripper_feedback", "standard_analog_input2", r"gripper_feedback = 'standard_analog_inp"),
     ("gripper_feedback_closed", 10.0, r"gripper_feedback_closed = 10\.0 and gripper_feedbac"),
-    ("gripper_feedback_open", math.inf, r"gripper_feedback_open = inf"),
-    ("gripper_max_opening_m", 0.0, r"gripper_max_opening_m = 0\.0 is outside"),
-    ("gripper_max_opening_m", math.nan, r"gripper_max_opening_m = nan"),
+    ("gripper_feedback_open", math.inf, r"driver\.gripper_feedback_open: must be a finite"),
+    ("gripper_max_opening_m", 0.0, r"driver\.gripper_max_opening_m: must be positive, got 0\.0"),
+    ("gripper_max_opening_m", math.nan, r"gripper_max_opening_m: must be a finite number.*nan"),
     ("gripper_speed", 1.0, r"arm\.driver\.gripper_speed: unknown key"),
 ])
 def test_bad_gripper_settings_are_refused_naming_the_key(key: str, value: object,

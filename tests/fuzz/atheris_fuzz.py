@@ -44,7 +44,7 @@ def _seeds(target: str) -> Iterator[bytes]:
 
 
 def _journal() -> bytes:
-    sections = load_manifest(ROOT / "manifests" / "sim-ur5e.toml").sections
+    sections = load_manifest(ROOT / "manifests" / "sim-ur5e.toml").sections.document()
     lines = [{"format": "warden-journal/1", "name": "seed", **sections},
              {"t": 0, "kind": "state", "q": sections["session"]["state"]},
              *({"t": 2 * k, "kind": "tick"} for k in range(3))]

@@ -19,10 +19,10 @@ from typing import Any
 import numpy as np
 import pytest
 
+from kernel.config.build import robot_limits
+from kernel.config.kinematics import robot_kinematics
 from kernel.robot_model import BUILTIN, ModelSpec, load_kinematics
-from kernel.scenario.config import robot_limits
 from kernel.scenario.fields import ScenarioError, Where
-from kernel.scenario.kinematics import robot_kinematics
 
 TOOL_OFFSET_M = 0.30
 HOME = np.array([0.0, -1.5707963267948966, 1.5707963267948966, -1.5707963267948966,

@@ -15,13 +15,13 @@ import msgspec
 import numpy as np
 
 from assurance.event_chunk import decode_event_chunk
+from kernel.config.build import build_config
 from kernel.core.config import CoreConfig
 from kernel.core.effects import Compute, Motion
 from kernel.core.events import ChunkEvent, ComputedEvent, Event, TickEvent
 from kernel.core.jobs import run_job
 from kernel.core.lines import Line, SentRef, TickLine
 from kernel.core.runtime import Core
-from kernel.scenario.config import build_config
 from kernel.scenario.fields import Where
 from tools.scenarios.base import IDENTITY, ScenarioSpec
 

@@ -89,7 +89,7 @@ def test_reading_the_view_imports_nothing_of_wardens_core() -> None:
              f"read_view({str(SHIPPED[0])!r})\n"
              "print(' '.join(sorted(m for m in sys.modules if m.split('.')[0] in "
              "('assurance', 'skills', 'pinocchio', 'mujoco') or m.startswith('kernel.core') "
-             "or m in ('kernel.manifest', 'kernel.settings', 'kernel.scenario.config'))))\n")
+             "or m in ('kernel.manifest', 'kernel.settings', 'kernel.config.build'))))\n")
     loaded = subprocess.run([sys.executable, "-c", probe], cwd=ROOT, capture_output=True,
                             text=True, check=True).stdout.split()
     assert loaded == ["assurance", "assurance.reasons"]  # the drivers' error codes only

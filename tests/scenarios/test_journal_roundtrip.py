@@ -14,7 +14,7 @@ from kernel.scenario.events import MAX_NS
 from kernel.scenario.load import load_scenario
 
 MANIFEST = Path(__file__).resolve().parents[2] / "manifests" / "sim-ur5e.toml"
-SECTIONS = load_manifest(MANIFEST).sections
+SECTIONS = load_manifest(MANIFEST).sections.document()
 
 
 @settings(max_examples=60, deadline=None)

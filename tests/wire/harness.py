@@ -21,11 +21,11 @@ import msgspec
 import numpy as np
 
 from assurance.handshake import ClientHello
+from kernel.config.build import build_config
 from kernel.core.effects import Hold, Step, Stop
 from kernel.core.events import Event, LinkEvent, StateEvent, TickEvent
 from kernel.core.lines import ChunkLine, HandshakeLine, Line, TickLine
 from kernel.core.runtime import Core
-from kernel.scenario.config import build_config
 from kernel.scenario.fields import Where
 from kernel.shell.client import RobotClient
 from kernel.shell.link_budget import AdmissionPacer

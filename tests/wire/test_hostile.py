@@ -10,12 +10,12 @@ import pytest
 
 from assurance.envelope import decode_wire_chunk
 from assurance.reasons import ReasonCode as R
+from kernel.config.build import build_config
 from kernel.core.effects import Step
 from kernel.core.events import ChunkEvent, ClockSyncEvent, ObservationEvent, TickEvent
 from kernel.core.lines import ChunkLine, encode
 from kernel.core.runtime import Core
 from kernel.journal import event_record
-from kernel.scenario.config import build_config
 from kernel.scenario.events import parse_events
 from kernel.scenario.fields import Where
 from kernel.shell.link_budget import AdmissionPacer, TokenBucket

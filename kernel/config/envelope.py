@@ -13,9 +13,9 @@ from collections.abc import Mapping
 from typing import Any
 
 from assurance.kinematics import ArmKinematics
+from kernel.config.workspace import WristForce, workspace_box
 from kernel.core.config import TrialBounds
 from kernel.scenario.fields import Where, mapping
-from kernel.scenario.workspace import WristForce, workspace_box
 from kernel.tables import typed
 
 

@@ -20,6 +20,9 @@ from assurance.clock import ms_to_ns
 from assurance.limits import JointLimits
 from assurance.policy import ForceBand, LinkLoss, PhasePolicy
 from assurance.watermarks import WatermarkConfig
+from kernel.config.envelope import trial_bounds
+from kernel.config.kinematics import cartesian_mapper, robot_kinematics
+from kernel.config.session import allowlist_section, session_section, state_vector
 from kernel.core.config import CoreConfig, MotionConfig, TrialBounds
 from kernel.manifest_tables import ROBOT_KEYS, control_period_ms, robot_limits_table
 from kernel.scenario.bounds import (
@@ -44,9 +47,6 @@ from kernel.scenario.fields import (
     text,
     vector,
 )
-from kernel.scenario.kinematics import cartesian_mapper, robot_kinematics
-from kernel.scenario.session import allowlist_section, session_section, state_vector
-from kernel.scenario.trial import trial_bounds
 from skills.phases import Executor, PhaseBook, PhaseCard, TaskPhase
 
 SECTION_KEYS: dict[str, frozenset[str]] = {

@@ -20,10 +20,10 @@ from typing import Any
 from assurance.cartesian import BASE_DELTA, CARTESIAN_UNITS, CartesianMapper, action_width
 from assurance.kinematics import ArmKinematics, WorkspaceBox
 from assurance.limits import JointLimits
+from kernel.config.workspace import workspace_box
 from kernel.core.config import ClientSide
 from kernel.robot_model import BUILTIN, ModelError, ModelSpec, load_kinematics
 from kernel.scenario.fields import Where, mapping, text
-from kernel.scenario.workspace import workspace_box
 
 
 def robot_kinematics(
