@@ -31,7 +31,7 @@ from stubs.cia402_drive.udp_bus import confine_to_host as confine_emulators_bus
 from stubs.fault_control import inject
 from stubs.process import EmulatorProcess
 from stubs.ur_controller.launch import free_loopback_host
-from tests.cell.harness import manifest
+from tests.cell.harness import DRIVER_MANIFESTS, DriverCycle, manifest
 from tests.net import OpenSocket, inet_sockets, own_non_loopback_address, process_tree
 
 NMT_START_ALL = pack_message(can.Message(arbitration_id=0x000, data=[0x01, 0x00],
@@ -142,16 +142,27 @@ class _ListSockets:
         return True
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize("name", ["sim-ur5e.toml", "sim-ur5e-rtde.toml", "sim-dynamixel.toml",
-                                  "sim-canopen.toml"])
-def test_a_running_cell_keeps_every_socket_on_this_host(tmp_path: Path, name: str) -> None:
+def _running_cells_sockets(tmp_path: Path, name: str,
+                           driver_cycle: Callable[[str], DriverCycle]) -> list[OpenSocket]:
+    """A driver's cell: the sockets its whole cycle (tests/cell/conftest.py, shared with
+    test_driver_cells.py) had open 200 ticks in; the in-process plant's: a run of its own,
+    ended there."""
+    if name in DRIVER_MANIFESTS:
+        return driver_cycle(name).sockets
     hook = _ListSockets(after_ticks=200)
     run(run_live(manifest(name, cycles=1), tmp_path / "runs", hook=hook))
-    assert hook.sockets, "the run ended before the sockets were listed"
-    assert _not_local(hook.sockets) == []
-    kinds = {(s.protocol, s.state) for s in hook.sockets}
+    return hook.sockets
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["sim-ur5e.toml", *DRIVER_MANIFESTS])
+def test_a_running_cell_keeps_every_socket_on_this_host(
+        tmp_path: Path, name: str, driver_cycle: Callable[[str], DriverCycle]) -> None:
+    sockets = _running_cells_sockets(tmp_path, name, driver_cycle)
+    assert sockets, "the run ended before the sockets were listed"
+    assert _not_local(sockets) == []
+    kinds = {(s.protocol, s.state) for s in sockets}
     assert ("tcp", "ESTAB") in kinds  # the policy link, at least
     if name == "sim-canopen.toml":  # warden's bus and the emulator's, both on lo only
-        udp = [s for s in hook.sockets if s.protocol == "udp"]
+        udp = [s for s in sockets if s.protocol == "udp"]
         assert len({s.pid for s in udp}) >= 2 and all("%lo:" in s.local for s in udp)
