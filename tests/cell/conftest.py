@@ -1,18 +1,28 @@
-"""Cell runs shared by several tests: a whole cycle through a vendor driver is seconds of wall
-clock and an emulator's start, so each driver's is run once and every test that only reads
-what it left (its summary, its journal, the sockets it had open) asserts on that one."""
+"""Cell runs shared by several tests: a whole cycle on the wall clock is seconds (and, through a
+vendor driver, an emulator's start), so the simulated cell's and each driver's are run once and
+every test that only reads what one left (its summary, its journal, the sockets it had open,
+what the service manager heard) asserts on that one."""
 
 from __future__ import annotations
 
 import dataclasses
+import os
 from collections.abc import Callable
+from pathlib import Path
 
 import msgspec
 import pytest
 
 from kernel.app.live import run_live
 from kernel.shell.loop import run
-from tests.cell.harness import DriverCycle, SocketsWhileRunning, manifest, run_dir
+from tests.cell.harness import (
+    DriverCycle,
+    ServiceManager,
+    SimCycle,
+    SocketsWhileRunning,
+    manifest,
+    run_dir,
+)
 
 
 @pytest.fixture(scope="session")
@@ -37,3 +47,29 @@ def driver_cycle(tmp_path_factory: pytest.TempPathFactory) -> Callable[[str], Dr
         return done[name]
 
     return cycle
+
+
+@pytest.fixture(scope="session")
+def sim_cycle(tmp_path_factory: pytest.TempPathFactory) -> SimCycle:
+    """One cycle of the shipped simulated cell (in-process plant, the policy server as a
+    process, a real websocket) on the wall clock, as systemd runs it: a stand-in service
+    manager at NOTIFY_SOCKET with a 2 s watchdog hears what warden tells it."""
+    root = tmp_path_factory.mktemp("sim-ur5e")
+    return _sim_cycle(root)
+
+
+def _sim_cycle(root: Path) -> SimCycle:
+    address = str(root / "notify.sock")
+    systemd = ServiceManager(address)
+    sockets = SocketsWhileRunning(after_ticks=200)
+    try:
+        with pytest.MonkeyPatch.context() as env:
+            env.setenv("NOTIFY_SOCKET", address)
+            env.setenv("WATCHDOG_USEC", "2000000")
+            env.setenv("WATCHDOG_PID", str(os.getpid()))
+            env.setenv("RUNTIME_DIRECTORY", str(root))  # the operator socket: ours alone
+            summary = run(run_live(manifest("sim-ur5e.toml", cycles=1), root / "runs",
+                                   hook=sockets))
+    finally:
+        messages = systemd.close()
+    return SimCycle(summary, run_dir(root / "runs"), sockets.sockets(), messages)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import socket
 import threading
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -76,3 +77,38 @@ class SocketsWhileRunning:
         if self._thread is not None:
             self._thread.join(timeout=30)
         return self.found
+
+
+class SimCycle(NamedTuple):
+    summary: dict[str, Any]
+    directory: Path
+    sockets: list[OpenSocket]
+    notified: list[str]
+    """What the stand-in service manager heard (NOTIFY_SOCKET datagrams), in order."""
+
+
+class ServiceManager:
+    """Stands in for systemd's notify socket: drains datagrams while the run goes on (a unix
+    datagram queue holds only ~10 messages)."""
+
+    def __init__(self, path: str) -> None:
+        self.sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+        self.sock.bind(path)
+        self.sock.settimeout(0.1)
+        self.messages: list[str] = []
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._drain, daemon=True)
+        self._thread.start()
+
+    def _drain(self) -> None:
+        while not self._stop.is_set():
+            try:
+                self.messages.append(self.sock.recv(4096).decode())
+            except TimeoutError:
+                continue
+
+    def close(self) -> list[str]:
+        self._stop.set()
+        self._thread.join()
+        self.sock.close()
+        return self.messages
