@@ -9,12 +9,11 @@ reason, put the fallback machine in the right state, and leave the arm held.
 
 from __future__ import annotations
 
-import dataclasses
 import json
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-import msgspec
 import numpy as np
 import pytest
 
@@ -22,27 +21,31 @@ from assurance.reasons import ReasonCode
 from kernel.app.live import run_live
 from kernel.app.session import RunContext
 from kernel.shell.loop import run
-from tests.cell.harness import manifest, replays_identically, run_dir
+from tests.cell.harness import (
+    DRIVER_MANIFESTS,
+    DriverCycle,
+    manifest,
+    replays_identically,
+    run_dir,
+)
 
 pytestmark = pytest.mark.slow
 
-DRIVER_MANIFESTS = ["sim-ur5e-rtde.toml", "sim-dynamixel.toml", "sim-canopen.toml"]
-
 
 @pytest.mark.parametrize("name", DRIVER_MANIFESTS)
-def test_a_full_cycle_runs_through_the_driver(tmp_path: Path, name: str) -> None:
+def test_a_full_cycle_runs_through_the_driver(
+        name: str, driver_cycle: Callable[[str], DriverCycle]) -> None:
     """As a real cell would: VERIFY judges on measured evidence alone (the simulator's ground
-    truth switched off)."""
-    cell = manifest(name, cycles=1)
-    cell = dataclasses.replace(cell, cell=msgspec.structs.replace(cell.cell, ground_truth=False))
-    summary = run(run_live(cell, tmp_path))
+    truth switched off). The run is tests/cell/conftest.py's, which test_loopback.py reads
+    too."""
+    summary, directory, _ = driver_cycle(name)
     assert summary["cycles"]["attempted"] == 1
     assert summary["cycles"]["verified"] == 1  # the driver's gripper grasped the peg
     reason = summary["cycles"]["detail"][0]["reason"]
     assert reason.startswith("inserted: measured") and "ground truth" not in reason
     assert summary["driver"]["faults"] == "none"
     assert summary["link"]["chunks_admitted"] > 5
-    assert replays_identically(run_dir(tmp_path))
+    assert replays_identically(directory)
 
 
 class FaultAfterApproach:

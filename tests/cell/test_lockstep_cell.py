@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import json
 import re
 from pathlib import Path
 
@@ -15,13 +16,14 @@ def _run(tmp: Path) -> dict:
     return asyncio.run(run_lockstep(manifest("sim-ur5e.toml", 1, ClockKind.VIRTUAL), tmp))
 
 
-def test_one_lockstep_cycle_is_verified_and_replays(tmp_path: Path) -> None:
-    summary = _run(tmp_path / "a")
+def test_one_lockstep_cycle_is_verified_and_replays(lockstep_run: Path) -> None:
+    """The session's shared lockstep run (tests/conftest.py: ``warden run --clock virtual``)."""
+    summary = json.loads((lockstep_run / "summary.json").read_text())
     assert summary["cycles"] == {"attempted": 1, "verified": 1,
                                  "detail": summary["cycles"]["detail"]}
     assert summary["decisions"].get("rejected", 0) < summary["inference_requests"]
     assert summary["proposals_by_phase"]["PRE_CONTACT"] > 5
-    assert replays_identically(run_dir(tmp_path / "a"))
+    assert replays_identically(lockstep_run)
 
 
 def _without_device_times(journal: Path) -> bytes:
@@ -30,6 +32,8 @@ def _without_device_times(journal: Path) -> bytes:
 
 
 def test_lockstep_runs_are_byte_identical(tmp_path: Path) -> None:
+    """Two runs back to back (not against the session's shared one: the journal's head names
+    the checkout's revision, which a commit between the two would change)."""
     _run(tmp_path / "a")
     _run(tmp_path / "b")
     first, second = run_dir(tmp_path / "a"), run_dir(tmp_path / "b")

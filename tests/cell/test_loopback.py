@@ -10,11 +10,9 @@ that address and the bus's port, arrives on that interface, as another host's wo
 
 from __future__ import annotations
 
-import os
 import socket
 import time
 from collections.abc import Callable
-from pathlib import Path
 
 import can
 import pytest
@@ -23,15 +21,12 @@ from can.interfaces.udp_multicast.utils import pack_message
 from drivers.canopen402.settings import CiA402Settings
 from drivers.canopen402.udp_bus import confine_to_host as confine_drivers_bus
 from drivers.settings import SettingsError
-from kernel.app.live import run_live
-from kernel.app.session import RunContext
-from kernel.shell.loop import run
 from stubs.cia402_drive.launch import unique_udp_bus
 from stubs.cia402_drive.udp_bus import confine_to_host as confine_emulators_bus
 from stubs.fault_control import inject
 from stubs.process import EmulatorProcess
 from stubs.ur_controller.launch import free_loopback_host
-from tests.cell.harness import manifest
+from tests.cell.harness import DRIVER_MANIFESTS, DriverCycle, SimCycle
 from tests.net import OpenSocket, inet_sockets, own_non_loopback_address, process_tree
 
 NMT_START_ALL = pack_message(can.Message(arbitration_id=0x000, data=[0x01, 0x00],
@@ -126,32 +121,22 @@ def test_a_udp_multicast_channel_is_an_ipv4_group(channel: str) -> None:
     assert CiA402Settings.from_mapping({**table, "channel": "239.1.2.3"}).channel == "239.1.2.3"
 
 
-class _ListSockets:
-    """Lists the sockets of this process and its children once the cell runs; ends the run."""
-
-    def __init__(self, after_ticks: int) -> None:
-        self.after_ticks = after_ticks
-        self.ticks = 0
-        self.sockets: list[OpenSocket] = []
-
-    def __call__(self, context: RunContext) -> bool:
-        self.ticks += 1
-        if self.ticks < self.after_ticks:
-            return False
-        self.sockets = inet_sockets(process_tree(os.getpid()))
-        return True
+def _running_cells_sockets(name: str, sim_cycle: SimCycle,
+                           driver_cycle: Callable[[str], DriverCycle]) -> list[OpenSocket]:
+    """The sockets a whole cycle had open 200 ticks in (tests/cell/conftest.py's runs, shared
+    with test_live_cell.py and test_driver_cells.py)."""
+    return driver_cycle(name).sockets if name in DRIVER_MANIFESTS else sim_cycle.sockets
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name", ["sim-ur5e.toml", "sim-ur5e-rtde.toml", "sim-dynamixel.toml",
-                                  "sim-canopen.toml"])
-def test_a_running_cell_keeps_every_socket_on_this_host(tmp_path: Path, name: str) -> None:
-    hook = _ListSockets(after_ticks=200)
-    run(run_live(manifest(name, cycles=1), tmp_path / "runs", hook=hook))
-    assert hook.sockets, "the run ended before the sockets were listed"
-    assert _not_local(hook.sockets) == []
-    kinds = {(s.protocol, s.state) for s in hook.sockets}
+@pytest.mark.parametrize("name", ["sim-ur5e.toml", *DRIVER_MANIFESTS])
+def test_a_running_cell_keeps_every_socket_on_this_host(
+        name: str, sim_cycle: SimCycle, driver_cycle: Callable[[str], DriverCycle]) -> None:
+    sockets = _running_cells_sockets(name, sim_cycle, driver_cycle)
+    assert sockets, "the run ended before the sockets were listed"
+    assert _not_local(sockets) == []
+    kinds = {(s.protocol, s.state) for s in sockets}
     assert ("tcp", "ESTAB") in kinds  # the policy link, at least
     if name == "sim-canopen.toml":  # warden's bus and the emulator's, both on lo only
-        udp = [s for s in hook.sockets if s.protocol == "udp"]
+        udp = [s for s in sockets if s.protocol == "udp"]
         assert len({s.pid for s in udp}) >= 2 and all("%lo:" in s.local for s in udp)

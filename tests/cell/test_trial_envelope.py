@@ -80,11 +80,14 @@ def _signed_sim_trial(tmp: Path, cycles: int = 1, cycle_timeout_s: float = 30.0,
     return manifest
 
 
-def _lockstep(manifest: Manifest, journal_dir: Path) -> tuple[dict[str, Any], list[dict]]:
-    """The trial's manifest on the virtual clock: its summary and its journal's lines."""
+def _lockstep(manifest: Manifest, journal_dir: Path, *, first_tick_only: bool = False,
+              ) -> tuple[dict[str, Any], list[dict]]:
+    """The trial's manifest on the virtual clock: its summary and its journal's lines;
+    ``first_tick_only``: the run ended after its first tick, for a test of the journal's head."""
     virtual = dataclasses.replace(manifest, cell=msgspec.structs.replace(manifest.cell,
                                                                      clock=ClockKind.VIRTUAL))
-    summary = asyncio.run(run_lockstep(virtual, journal_dir))
+    hook = (lambda _: True) if first_tick_only else None
+    summary = asyncio.run(run_lockstep(virtual, journal_dir, hook=hook))
     (journal,) = journal_dir.glob("*/journal.jsonl")
     return summary, [json.loads(line) for line in journal.read_text().splitlines()]
 
@@ -149,8 +152,9 @@ def test_the_bytes_parsed_are_the_bytes_verified(tmp_path: Path,
     assert manifest.trial is not None and manifest.trial.speed_scale == 0.5
     assert manifest.digest == hashlib.sha256(signed).hexdigest()
     assert manifest.signer == TEST_KEY_ID
-    # Nothing after the load reads the file again: the run is the verified manifest's.
-    _, lines = _lockstep(manifest, tmp_path / "runs")
+    # Nothing after the load reads the file again: the run is the verified manifest's (its
+    # journal's head says which; one tick writes it).
+    _, lines = _lockstep(manifest, tmp_path / "runs", first_tick_only=True)
     assert lines[0]["provenance"]["manifest"]["sha256"] == hashlib.sha256(signed).hexdigest()
     assert np.allclose(lines[0]["robot"]["velocity_limits"], 0.5 * SHIPPED_VELOCITY)
 

@@ -20,19 +20,12 @@ from kernel.replay import same_bits
 _Capture = pytest.CaptureFixture[str]
 
 
-@pytest.fixture(scope="module")
-def recorded(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A real run's directory: ``warden run --clock virtual --cycles 1``."""
-    root = tmp_path_factory.mktemp("runs")
-    assert main(["run", "--clock", "virtual", "--cycles", "1", "--journal-dir", str(root)]) == 0
-    (directory,) = root.iterdir()
-    return directory
-
-
 @pytest.fixture
-def run_copy(recorded: Path, tmp_path: Path) -> Path:
+def run_copy(lockstep_run: Path, tmp_path: Path) -> Path:
+    """A copy of a real run's directory (``warden run --clock virtual --cycles 1``, the
+    session's shared record, tests/conftest.py)."""
     copy = tmp_path / "run"
-    shutil.copytree(recorded, copy)
+    shutil.copytree(lockstep_run, copy)
     return copy
 
 

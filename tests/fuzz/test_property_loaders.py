@@ -87,14 +87,10 @@ def workdir(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 @pytest.fixture(scope="module")
-def journal(tmp_path_factory: pytest.TempPathFactory) -> list[Any]:
-    """A journal recorded by ``warden run --clock virtual --cycles 1``, as parsed lines."""
-    runs = tmp_path_factory.mktemp("runs")
-    code, err = run_cli(["run", "--clock", "virtual", "--cycles", "1", "--journal-dir",
-                         str(runs), "--log-format", "json"])
-    assert code == 0, err
-    (path,) = runs.glob("*/journal.jsonl")
-    lines = path.read_text().splitlines()
+def journal(lockstep_run: Path) -> list[Any]:
+    """A journal recorded by ``warden run --clock virtual --cycles 1`` (the session's shared
+    record, tests/conftest.py), as parsed lines."""
+    lines = (lockstep_run / "journal.jsonl").read_text().splitlines()
     events = [json.loads(line) for line in lines]
     chunks = [e for e in events if e.get("kind") in ("chunk", "observation", "computed")][:6]
     # The prefix, and a few of the run's later events a mutation may move into it.

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 
 import msgspec
@@ -16,6 +17,13 @@ SCENARIO_DIR = ROOT / "manifests" / "scenarios"
 FILES = sorted(SCENARIO_DIR.glob("*.json"))
 
 
+@functools.cache
+def _replayed(path: Path) -> bytes:
+    """A scenario's decision log, replayed once for every test of this module that reads it
+    (the byte-identity test replays a second time, from a fresh load, to compare)."""
+    return replay_bytes(load_scenario(path))
+
+
 def test_catalog_has_scenarios() -> None:
     assert len(FILES) >= 40
 
@@ -24,13 +32,13 @@ def test_catalog_has_scenarios() -> None:
 def test_scenario_meets_its_expectations(path: Path) -> None:
     scenario = load_scenario(path)
     assert scenario.expect, "a scenario without expectations proves nothing"
-    lines = [msgspec.json.decode(line) for line in replay_bytes(scenario).splitlines()]
+    lines = [msgspec.json.decode(line) for line in _replayed(path).splitlines()]
     assert check_expectations(scenario, lines) == []
 
 
 @pytest.mark.parametrize("path", FILES, ids=lambda p: p.stem)
 def test_replay_is_byte_identical(path: Path) -> None:
-    first = replay_bytes(load_scenario(path))
+    first = _replayed(path)
     second = replay_bytes(load_scenario(path))
     assert first == second
 
@@ -46,7 +54,7 @@ def test_committed_files_match_the_catalog() -> None:
 def _reasons_in_logs() -> set[str]:
     seen: set[str] = set()
     for path in FILES:
-        for raw in replay_bytes(load_scenario(path)).splitlines():
+        for raw in _replayed(path).splitlines():
             line = msgspec.json.decode(raw)
             seen.update(line.get("reasons", ()))
             for key in ("trigger", "reason"):
@@ -67,7 +75,7 @@ def test_every_fallback_state_is_reached() -> None:
 
     reached: set[str] = set()
     for path in FILES:
-        for raw in replay_bytes(load_scenario(path)).splitlines():
+        for raw in _replayed(path).splitlines():
             line = msgspec.json.decode(raw)
             if line["kind"] == "transition" and line["machine"] == "fallback":
                 reached.add(line["to"])
