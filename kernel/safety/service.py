@@ -25,6 +25,7 @@ from kernel.safety.devices import watch_for
 from kernel.safety.heartbeat import HeartbeatReceiver
 from kernel.safety.monitor import Monitor
 from kernel.safety.settings import SafetySettings
+from kernel.safety.space import SpaceCheck, SpaceModelError, checked_solids
 from kernel.safety.status import StatusServer, socket_problem
 from kernel.safety.view import MonitorView, ViewError, read_view
 from kernel.safety.watch import DeviceUnreachable, DeviceWatch
@@ -49,6 +50,7 @@ class Plan:
     settings: SafetySettings
     limits: Limits
     gid: int
+    space: SpaceCheck | None = None
 
 
 def plan(path: str) -> Plan:
@@ -75,7 +77,28 @@ def plan(path: str) -> Plan:
     except KeyError:
         raise StartError(f"{manifest.path}: safety.group: no group {group!r} on this "
                          "host") from None
-    return Plan(manifest, settings, Limits.of(manifest.limits, settings), gid)
+    limits = Limits.of(manifest.limits, settings)
+    return Plan(manifest, settings, limits, gid, _space(manifest, len(limits.lower)))
+
+
+def _space(manifest: MonitorView, dof: int) -> SpaceCheck | None:
+    """The space check of ``[geometry]``, or None when it names no solid the monitor checks.
+
+    Raises:
+        StartError: solids to check and no arm model to check them against, or a model
+            MuJoCo cannot load.
+    """
+    geometry = manifest.geometry
+    if geometry is None or not checked_solids(geometry):
+        return None
+    if manifest.arm_model is None:
+        raise StartError(f"{manifest.path}: robot.kinematics: the monitor checks the arm "
+                         "against [geometry] and needs the arm's model ('kinematics' or "
+                         "'model')")
+    try:
+        return SpaceCheck(manifest.arm_model, dof, geometry)
+    except SpaceModelError as error:
+        raise StartError(f"{manifest.path}: robot.model: {error}") from None
 
 
 def serve(path: str) -> None:
@@ -99,7 +122,7 @@ def serve(path: str) -> None:
         stack.callback(heartbeat.close)
         watch = _connected(chosen)
         stack.callback(watch.close)
-        monitor = Monitor(settings, chosen.limits, watch, heartbeat)
+        monitor = Monitor(settings, chosen.limits, watch, heartbeat, space=chosen.space)
         manifest = chosen.manifest
         watched = {"name": manifest.name, "path": str(manifest.path.resolve()),
                    "digest": manifest.digest}  # a trial checks this is its own manifest
@@ -123,7 +146,8 @@ def _watch(chosen: Plan, monitor: Monitor, status: StatusServer) -> None:
             log.info("safety monitor watching", manifest=str(chosen.manifest.path),
                      device=watch.description, stop_path=watch.stop_path,
                      heartbeat=str(settings.heartbeat_path), status=str(settings.status_path),
-                     timeout_ms=settings.heartbeat_timeout_ms, scheduling=realtime.in_effect())
+                     timeout_ms=settings.heartbeat_timeout_ms, scheduling=realtime.in_effect(),
+                     space=list(chosen.space.solids) if chosen.space else None)
             service.ready(f"watching {watch.description}")
             monitor.run(stopping, service.alive)
     finally:
