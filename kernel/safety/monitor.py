@@ -1,7 +1,8 @@
 """The monitor's loop: every check period, read the heartbeat and the device, judge, and stop.
 
 One check: take every heartbeat datagram waiting; read the device through the monitor's own
-connection; compare joints, speeds and the wrist force with the limits (kernel/safety/checks.py);
+connection; compare joints, speeds and the wrist force with the limits (kernel/safety/checks.py)
+and, with a ``[geometry]`` table, the arm's place against its solids (kernel/safety/space.py);
 add a lost heartbeat, motion while no warden run heartbeats, and a device that stopped
 answering. A breach that was not there at the previous check stops the arm at once, through the
 watch's own stop path, and is logged with what was seen. A breach that persists while the arm

@@ -11,6 +11,7 @@ TCP 0.1275 m from the gripper's origin).
 
 from __future__ import annotations
 
+import itertools
 import math
 import os
 import tomllib
@@ -90,7 +91,7 @@ def oracle() -> Oracle:
 
 def _segment_distance(point: np.ndarray, chain: np.ndarray) -> float:
     best = math.inf
-    for a, b in zip(chain[:-1], chain[1:], strict=True):
+    for a, b in itertools.pairwise(chain):
         ab = b - a
         t = 0.0 if not ab.any() else float(np.clip((point - a) @ ab / (ab @ ab), 0.0, 1.0))
         best = min(best, float(np.linalg.norm(point - (a + t * ab))))
