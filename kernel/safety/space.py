@@ -6,19 +6,22 @@ MuJoCo's collision detection (``mj_kinematics`` + ``mj_collision``), not the cor
 queries. The solids are ``[geometry]`` (:mod:`kernel.cell_geometry`, the same table the core
 reads), added to the model's world as geoms through ``mujoco.MjSpec``.
 
-What is checked, on every sample the monitor reads (the measured arm joints):
+What is checked, on every sample the monitor reads (the measured arm joints), for every moving
+geom of the arm's model (the model's primitive geoms on bodies below the first joint):
 
-- every moving geom of the arm's model (links, tool, fingers: the model's primitive geoms on
-  bodies below the first joint) against each keep-out zone: inside it at all is a breach;
-- the same geoms against each obstacle that no phase may touch (``allow_contact`` empty),
-  closer than the smallest clearance any phase keeps (``margin_m`` and every
-  ``phase_margin_m``): the monitor does not know the phase, so it holds the arm to the loosest
-  clearance warden itself could have commanded. An obstacle some phase may touch (the fixture
-  in CONTACT) is not checked: the monitor cannot tell that phase from another.
+- against each keep-out zone: inside it at all is a breach, for any geom;
+- against each obstacle: closer than the smallest clearance any phase keeps (``margin_m`` and
+  every ``phase_margin_m``) is a breach. The monitor does not know the phase, so it holds the
+  arm to the loosest clearance warden itself could have commanded. The tool (the body that
+  carries the TCP site, and every body below it: the gripper and its fingers) is checked only
+  against the obstacles no phase may touch (``allow_contact`` empty): the monitor cannot tell
+  the contact phase from another. The arm's links are checked against every obstacle, as
+  warden keeps them clear in every phase.
 
 What is not: the held part (the monitor does not know whether the gripper holds one), the
-arm against itself, and the fingers' opening (they are placed at the model's reference,
-closed: a pad moves at most its finger's travel sideways from there).
+tool against an obstacle some phase may touch, the arm against itself, and the fingers'
+opening (they are placed at the model's reference, closed: a pad moves at most its finger's
+travel sideways from there).
 """
 
 from __future__ import annotations
@@ -35,9 +38,12 @@ from kernel.cell_geometry import GeometrySettings, Shape, Solid
 from kernel.safety.checks import Breach, Finding
 from kernel.safety.view import ArmModel
 
-ARM_BIT, SOLID_BIT = 1, 2
-"""Contact masks: an arm geom (contype ARM_BIT, conaffinity 0) pairs only with a solid
-(contype 0, conaffinity ARM_BIT): never two arm geoms, never two solids."""
+LINK_BIT, TOOL_BIT = 1, 2
+"""Contact masks: a link's geom has contype LINK_BIT, the tool's TOOL_BIT, both conaffinity 0;
+a solid has contype 0 and conaffinity LINK_BIT (an obstacle some phase may touch) or
+LINK_BIT | TOOL_BIT: MuJoCo pairs two geoms only where one's contype meets the other's
+conaffinity, so never two arm geoms, never two solids, never the tool and a touchable
+obstacle."""
 _TYPES = {Shape.BOX: mujoco.mjtGeom.mjGEOM_BOX, Shape.SPHERE: mujoco.mjtGeom.mjGEOM_SPHERE,
           Shape.CYLINDER: mujoco.mjtGeom.mjGEOM_CYLINDER,
           Shape.CAPSULE: mujoco.mjtGeom.mjGEOM_CAPSULE}
@@ -54,6 +60,8 @@ class _Checked:
     name: str
     keep_out: bool
     clearance: float
+    tool: bool
+    """The tool is checked against it too."""
 
 
 def clearance_of(geometry: GeometrySettings) -> float:
@@ -62,12 +70,12 @@ def clearance_of(geometry: GeometrySettings) -> float:
 
 
 def checked_solids(geometry: GeometrySettings) -> list[tuple[Solid, _Checked]]:
-    """Every solid the monitor checks, with how: the keep-out zones, and the obstacles no
-    phase may touch."""
+    """Every solid the monitor checks, with how: the keep-out zones and the obstacles."""
     clearance = clearance_of(geometry)
-    zones = [(zone, _Checked(zone.name, True, 0.0)) for zone in geometry.keep_out]
-    return zones + [(obstacle, _Checked(obstacle.name, False, clearance))
-                    for obstacle in geometry.obstacles if not obstacle.allow_contact]
+    zones = [(zone, _Checked(zone.name, True, 0.0, True)) for zone in geometry.keep_out]
+    return zones + [(obstacle, _Checked(obstacle.name, False, clearance,
+                                        not obstacle.allow_contact))
+                    for obstacle in geometry.obstacles]
 
 
 class SpaceCheck:
@@ -81,7 +89,7 @@ class SpaceCheck:
         """
         spec = _spec(arm.path)
         for geom in spec.geoms:
-            geom.contype, geom.conaffinity, geom.margin, geom.gap = ARM_BIT, 0, 0.0, 0.0
+            geom.contype, geom.conaffinity, geom.margin, geom.gap = LINK_BIT, 0, 0.0, 0.0
         spec.option.disableflags &= ~int(mujoco.mjtDisableBit.mjDSBL_CONTACT)
         self._solids: dict[str, _Checked] = {}
         for solid, how in checked_solids(geometry):
@@ -89,12 +97,15 @@ class SpaceCheck:
             spec.worldbody.add_geom(
                 name=name, type=_TYPES[solid.shape], size=_size(solid.shape, solid.size),
                 pos=list(solid.position), quat=_quaternion(solid.rotation),
-                contype=0, conaffinity=ARM_BIT, margin=how.clearance)
+                contype=0, conaffinity=LINK_BIT | (TOOL_BIT if how.tool else 0),
+                margin=how.clearance)
             self._solids[name] = how
         try:
             self.model = spec.compile()
         except ValueError as error:
             raise SpaceModelError(f"{arm.path}: MuJoCo cannot compile it: {error}") from None
+        for geom in _tool_geoms(self.model, arm):
+            self.model.geom_contype[geom] = TOOL_BIT
         self.data = mujoco.MjData(self.model)
         self._solid_ids = {mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_GEOM, name): how
                            for name, how in self._solids.items()}
@@ -146,6 +157,26 @@ def _spec(path: Path) -> mujoco.MjSpec:
         return mujoco.MjSpec.from_string(text)
     except ValueError as error:
         raise SpaceModelError(f"{path}: not a model MuJoCo reads: {error}") from None
+
+
+def _tool_geoms(model: mujoco.MjModel, arm: ArmModel) -> list[int]:
+    """The geoms of the body that carries the TCP site (or is the TCP frame) and of every body
+    below it."""
+    site = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, arm.tcp_frame)
+    body = int(model.site_bodyid[site]) if site >= 0 else mujoco.mj_name2id(
+        model, mujoco.mjtObj.mjOBJ_BODY, arm.tcp_frame)
+    if body <= 0:
+        raise SpaceModelError(f"{arm.path}: no site or body {arm.tcp_frame!r} (the TCP frame) "
+                              "on the arm")
+
+    def below(b: int) -> bool:
+        while b > 0:
+            if b == body:
+                return True
+            b = int(model.body_parentid[b])
+        return False
+
+    return [g for g in range(model.ngeom) if below(int(model.geom_bodyid[g]))]
 
 
 def _arm_addresses(model: mujoco.MjModel, arm: ArmModel, dof: int) -> np.ndarray:

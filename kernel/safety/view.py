@@ -44,13 +44,15 @@ class ArmModel(msgspec.Struct, frozen=True):
     """The arm's model file as ``[robot]`` names it (kernel/safety/space.py loads it)."""
 
     path: Path
+    tcp_frame: str
+    """The TCP: a site (MJCF) or a body of the model; its body and those below are the tool."""
     joints: tuple[str, ...] | None
     """The arm's joints, base to tool; None: the model's first ``dof`` joints."""
 
 
 MODELS_DIR = Path(__file__).resolve().parents[2] / "manifests" / "models"
 BUILTIN_MODELS: dict[str, ArmModel] = {
-    "ur5e": ArmModel(MODELS_DIR / "ur5e.xml", (
+    "ur5e": ArmModel(MODELS_DIR / "ur5e.xml", "tcp", (
         "shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint", "wrist_1_joint",
         "wrist_2_joint", "wrist_3_joint")),
 }
@@ -141,7 +143,8 @@ def _arm_model(robot: Mapping[str, Any], where: Where) -> ArmModel | None:
     if joints is not None and not (isinstance(joints, list) and joints
                                    and all(isinstance(j, str) and j for j in joints)):
         raise where.at("joints").error("must be a list of joint names")
-    return ArmModel(path, tuple(joints) if joints is not None else None)
+    return ArmModel(path, text(robot, "tcp_frame", where),
+                    tuple(joints) if joints is not None else None)
 
 
 def _emulator(doc: Mapping[str, Any], where: Where) -> EmulatorSettings:

@@ -171,14 +171,23 @@ def test_the_clearance_is_the_smallest_any_phase_keeps(oracle: Oracle) -> None:
     assert SpaceCheck(ARM, 6, geometry("margin_m = 0.01\n" + TABLE)).findings(q) != []
 
 
-def test_an_obstacle_some_phase_may_touch_is_not_checked(oracle: Oracle) -> None:
+def test_an_obstacle_some_phase_may_touch_is_kept_from_the_links_not_the_tool(
+        oracle: Oracle) -> None:
+    """A box of half size 0.05 around the TCP holds the pads and nothing of the links (the
+    wrist's sensor housing ends at the gripper's origin, 0.1275 m above the TCP); one around
+    the gripper's origin holds the end of the wrist's housing too."""
     q = HOME
-    around = oracle.tcp(q).translation
-    touchable = box("fixture", around, 0.05, "obstacles", 'allow_contact = ["CONTACT"]\n')
-    assert SpaceCheck(ARM, 6, geometry(touchable)).solids == ()
-    untouchable = box("fixture", around, 0.05, "obstacles")
-    assert [f.breach for f in SpaceCheck(ARM, 6, geometry(untouchable)).findings(q)] == [
-        Breach.SPACE]
+    tcp = oracle.tcp(q)
+    touchable = 'allow_contact = ["CONTACT"]\n'
+    around_tcp = box("fixture", tcp.translation, 0.05, "obstacles", touchable)
+    assert SpaceCheck(ARM, 6, geometry(around_tcp)).findings(q) == []
+    untouchable = box("fixture", tcp.translation, 0.05, "obstacles")
+    [finding] = SpaceCheck(ARM, 6, geometry(untouchable)).findings(q)
+    assert finding.detail.startswith("finger_")
+    gripper_origin = tcp.translation - tcp.rotation[:, 2] * 0.1275
+    around_wrist = box("fixture", gripper_origin, 0.05, "obstacles", touchable)
+    [finding] = SpaceCheck(ARM, 6, geometry(around_wrist)).findings(q)
+    assert finding.detail.startswith("wrist_3_link is ")
 
 
 def test_a_solid_is_placed_and_turned_as_the_manifest_says(oracle: Oracle) -> None:
@@ -246,7 +255,8 @@ def test_the_view_finds_the_model_file_warden_loads(path: Path) -> None:
         assert view.arm_model is None
     else:
         assert view.arm_model is not None
-        assert (view.arm_model.path, view.arm_model.joints) == (spec.path, spec.joints)
+        assert (view.arm_model.path, view.arm_model.tcp_frame, view.arm_model.joints) == (
+            spec.path, spec.tcp_frame, spec.joints)
 
 
 def test_a_monitor_with_solids_and_no_model_is_refused(tmp_path: Path) -> None:
