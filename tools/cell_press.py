@@ -7,11 +7,15 @@ the pre-contact phase starts (the staging pose above the fixture) towards
 
 - ``table``: a tool-down pose whose TCP is 2 cm below the table top, 15 cm from the fixture;
 - ``fixture``: the held peg's bottom 2 cm into the fixture's top, over the wall beside the hole;
-- ``elbow``: the upper arm pointing down into the table while the tool stays high (the TCP is
-  0.54 m above the table where the upper arm first comes within 3 cm of it), at 0.8 rad/s;
+- ``elbow``: the upper arm pointing down into the table while the tool turns up (the TCP is
+  0.16 m above the table where the upper arm first comes within 5 mm of it);
 - ``wrist``: the elbow folded until the wrist and the tool lie in the upper arm (the tool's
   fingers first come within 3 cm of the upper arm, the table never within 5 cm but for the
-  shoulder's fixed 3 cm), at 0.8 rad/s.
+  shoulder's fixed 3 cm).
+
+The elbow and the wrist presses move at 0.7 rad/s (the reference server's 0.3 would not reach
+a goal 2-3.4 rad away before the approach's 8 s timeout; faster chunks are refused by the
+projection gate).
 
 warden runs the cell with ``[policy] launch = false`` against that server, one cycle.
 :func:`judge` reads the run's journal: every joint setpoint warden commanded, put through
@@ -58,8 +62,7 @@ class Press:
     goal: Callable[[object, np.ndarray], np.ndarray]
     """(the cell's context, the pre-contact staging configuration) → the policy's goal."""
     max_speed: float | None = None
-    """rad/s, the policy's speed if not the reference server's (0.3): a goal several radians
-    away is reached before the approach's 8 s timeout."""
+    """rad/s, the policy's speed if not the reference server's (0.3)."""
 
 
 def _tool_down(position: tuple[float, float, float]) -> Callable[[object, np.ndarray],
@@ -81,8 +84,8 @@ def _joints(lift: float, elbow: float, wrist_1: float) -> Callable[[object, np.n
 PRESSES: dict[str, Press] = {press.name: press for press in (
     Press("table", _tool_down((-0.40, -0.15, TABLE_TOP_Z - 0.02))),
     Press("fixture", _tool_down((-0.53, -0.15, 0.03 - 0.02 + PEG_BOTTOM_BELOW_TCP))),
-    Press("elbow", _joints(0.45, -2.2, -1.5), max_speed=0.8),
-    Press("wrist", _joints(-1.9, 2.9, 1.5), max_speed=0.8),
+    Press("elbow", _joints(0.5, -0.7, -3.0), max_speed=0.7),
+    Press("wrist", _joints(-1.9, 2.9, 1.5), max_speed=0.7),
 )}
 
 

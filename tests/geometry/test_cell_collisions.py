@@ -53,9 +53,9 @@ def _geometry(cell: str) -> GeometrySettings:
 
 def _clearance(geometry: GeometrySettings, measure: str) -> float:
     """The clearance warden keeps in the pre-contact phase for what ``measure`` measures."""
-    if measure == "wrist_upper":
+    if measure == "wrist_upper":  # self-collision keeps the default clearance in every phase
         assert geometry.self_collision
-        return geometry.margin(PHASE)
+        return geometry.margin_m
     solid = "table" if measure.endswith("table") else "fixture"
     [obstacle] = [o for o in geometry.obstacles if solid in o.name]
     assert PHASE not in obstacle.allow_contact
