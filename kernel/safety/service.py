@@ -17,6 +17,7 @@ import threading
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import structlog
 
@@ -25,13 +26,15 @@ from kernel.safety.devices import watch_for
 from kernel.safety.heartbeat import HeartbeatReceiver
 from kernel.safety.monitor import Monitor
 from kernel.safety.settings import SafetySettings
-from kernel.safety.space import SpaceCheck, SpaceModelError, checked_solids
 from kernel.safety.status import StatusServer, socket_problem
 from kernel.safety.view import MonitorView, ViewError, read_view
 from kernel.safety.watch import DeviceUnreachable, DeviceWatch
 from kernel.shell.device_lock import DeviceBusy, Holder, holding
 from kernel.shell.realtime import log_report, restore, try_realtime
 from kernel.shell.systemd import ServiceNotifier
+
+if TYPE_CHECKING:
+    from kernel.safety.space import SpaceCheck
 
 log = structlog.get_logger("warden.safety")
 PRIORITY = 60
@@ -89,8 +92,10 @@ def _space(manifest: MonitorView, dof: int) -> SpaceCheck | None:
             MuJoCo cannot load.
     """
     geometry = manifest.geometry
-    if geometry is None or not checked_solids(geometry):
+    if geometry is None or not (geometry.obstacles or geometry.keep_out):
         return None
+    # MuJoCo is loaded only here: a monitor of a cell without solids never imports it.
+    from kernel.safety.space import SpaceCheck, SpaceModelError
     if manifest.arm_model is None:
         raise StartError(f"{manifest.path}: robot.kinematics: the monitor checks the arm "
                          "against [geometry] and needs the arm's model ('kinematics' or "

@@ -82,7 +82,8 @@ class MonitorView(msgspec.Struct, frozen=True):
     geometry: GeometrySettings | None = None
     """``[geometry]``; None: no such table (the monitor checks no space)."""
     arm_model: ArmModel | None = None
-    """The arm's model file (``[robot] kinematics`` or ``model``); None: none named."""
+    """The arm's model file (``[robot] kinematics`` or ``model``), read with ``[geometry]``;
+    None: none named, or no ``[geometry]``."""
 
 
 def read_view(path: str | Path) -> MonitorView:
@@ -114,14 +115,17 @@ def _view(path: Path, raw: str, digest: str) -> MonitorView:
                                   where.at("timing"))
     driver_name, driver = driver_table(doc, where)
     emulator = _emulator(doc, where)
+    geometry = geometry_table(doc, where)
     return MonitorView(
         name=run_name(doc, path, where), path=path, digest=digest,
         limits=robot_limits_table(robot, where.at("robot")),
         safety=safety_table(doc, where, round(period_ms * 1e6)),  # as assurance.clock rounds
         driver_name=driver_name,
         driver_settings=decode_driver_settings(driver_name, driver, emulator.launch, where),
-        emulator=emulator, geometry=geometry_table(doc, where),
-        arm_model=_arm_model(robot, where.at("robot")))
+        emulator=emulator, geometry=geometry,
+        # The model matters to the monitor only for the space check: without [geometry] a
+        # mistake in naming it is warden's refusal, not the monitor's.
+        arm_model=_arm_model(robot, where.at("robot")) if geometry is not None else None)
 
 
 

@@ -28,7 +28,7 @@ from kernel.safety.monitor import Monitor
 from kernel.safety.service import StartError, plan
 from kernel.safety.settings import SafetySettings
 from kernel.safety.space import SpaceCheck, clearance_of
-from kernel.safety.view import BUILTIN_MODELS, read_view
+from kernel.safety.view import BUILTIN_MODELS, ViewError, read_view
 from kernel.scenario.fields import Where
 from tests.safety.support import MANIFESTS, free_port, sim_manifest
 from tests.safety.test_monitor import Clock, ScriptedWatch
@@ -245,18 +245,37 @@ def test_the_monitor_stops_the_arm_entering_a_keep_out_zone_and_reports_it(
 # -- the monitor's own view: the model file and [geometry] -----------------------------------
 
 @pytest.mark.parametrize("path", sorted(MANIFESTS.glob("*.toml")), ids=lambda p: p.name)
-def test_the_view_finds_the_model_file_warden_loads(path: Path) -> None:
+def test_the_view_finds_the_model_file_warden_loads(path: Path, tmp_path: Path) -> None:
     from kernel.scenario.kinematics import model_spec
 
-    doc = tomllib.loads(path.read_text())
-    spec = model_spec(doc["robot"], Where(str(path), "robot"))
-    view = read_view(path)
+    text = path.read_text()
+    spec = model_spec(tomllib.loads(text)["robot"], Where(str(path), "robot"))
+    if "[geometry]" not in text:
+        text += "\n[geometry]\n" + TABLE
+    copy = tmp_path / path.name  # beside nothing: a relative model path is the manifest's
+    copy.write_text(text.replace('model = "', f'model = "{path.parent}/'))
+    view = read_view(copy)
     if spec is None:
         assert view.arm_model is None
     else:
         assert view.arm_model is not None
         assert (view.arm_model.path, view.arm_model.tcp_frame, view.arm_model.joints) == (
             spec.path, spec.tcp_frame, spec.joints)
+
+
+def test_without_geometry_the_view_reads_no_model(tmp_path: Path) -> None:
+    """The model is the space check's: without [geometry] a mistake naming it is warden's to
+    refuse, and the monitor watches the joints as before; with it, the monitor refuses it
+    with warden's message."""
+    text = (MANIFESTS / "sim-ur5e.toml").read_text().split("\n[geometry]")[0].replace(
+        'kinematics = "ur5e"', 'kinematics = "no-such-model"')
+    path = tmp_path / "cell.toml"
+    path.write_text(text)
+    assert read_view(path).arm_model is None
+    path.write_text(text + "\n[geometry]\n" + TABLE)
+    with pytest.raises(ViewError, match=r"cell.toml: robot.kinematics: unknown model "
+                       r"'no-such-model' \(expected one of ur5e\)"):
+        read_view(path)
 
 
 def test_a_monitor_with_solids_and_no_model_is_refused(tmp_path: Path) -> None:
