@@ -297,10 +297,11 @@ def test_a_monitor_with_geometry_checks_space(tmp_path: Path) -> None:
 
 # -- in a running cell: warden drives the UR emulator, the monitor watches its own copy ------
 
-ABOVE_PART = (-0.40, 0.10, 0.07)
-"""On the pick descent's straight line: the TCP goes from 0.1475 m above the table down to
-0.0475 m over the part at (-0.40, 0.10) (skills/assembly.py: pick approach, then descend)."""
-ZONE_RADIUS = 0.015
+ABOVE_PART = (-0.40, 0.10, 0.10)
+"""On the pick descent: the TCP goes from 0.1475 m above the table (the pads' tips 1 cm above
+the zone) down to 0.0475 m over the part at (-0.40, 0.10) (skills/assembly.py: pick approach,
+then descend)."""
+ZONE_RADIUS = 0.025
 GRASP_TCP_Z = 0.0475
 
 
