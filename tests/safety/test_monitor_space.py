@@ -278,9 +278,14 @@ def test_without_geometry_the_view_reads_no_model(tmp_path: Path) -> None:
         read_view(path)
 
 
+def _without_geometry(manifest: Path) -> str:
+    """The manifest's text without its own ``[geometry]`` (the shipped ones end with it)."""
+    return manifest.read_text().split("\n[geometry]")[0]
+
+
 def test_a_monitor_with_solids_and_no_model_is_refused(tmp_path: Path) -> None:
     manifest = sim_manifest(tmp_path, free_port())
-    text = manifest.read_text().replace('kinematics = "ur5e"', "")
+    text = _without_geometry(manifest).replace('kinematics = "ur5e"', "")
     manifest.write_text(text + "\n[geometry]\n" + TABLE)
     with pytest.raises(StartError, match=r"cell.toml: robot.kinematics: the monitor checks the "
                        r"arm against \[geometry\] and needs the arm's model"):
@@ -289,10 +294,12 @@ def test_a_monitor_with_solids_and_no_model_is_refused(tmp_path: Path) -> None:
 
 def test_a_monitor_with_geometry_checks_space(tmp_path: Path) -> None:
     manifest = sim_manifest(tmp_path, free_port())
-    manifest.write_text(manifest.read_text() + "\n[geometry]\n" + TABLE)
+    plain = _without_geometry(manifest)
+    manifest.write_text(plain + "\n[geometry]\n" + TABLE)
     chosen = plan(str(manifest))
     assert chosen.space is not None and chosen.space.solids == ("table",)
-    assert plan(str(sim_manifest(tmp_path, free_port(), name="plain.toml"))).space is None
+    manifest.write_text(plain)
+    assert plan(str(manifest)).space is None
 
 
 # -- in a running cell: warden drives the UR emulator, the monitor watches its own copy ------
