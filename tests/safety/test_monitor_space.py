@@ -30,7 +30,7 @@ from kernel.safety.settings import SafetySettings
 from kernel.safety.space import SpaceCheck, clearance_of
 from kernel.safety.view import BUILTIN_MODELS, ViewError, read_view
 from kernel.scenario.fields import Where
-from tests.safety.support import MANIFESTS, free_port, sim_manifest
+from tests.safety.support import MANIFESTS, free_port, safety_table
 from tests.safety.test_monitor import Clock, ScriptedWatch
 
 ARM = BUILTIN_MODELS["ur5e"]
@@ -278,28 +278,27 @@ def test_without_geometry_the_view_reads_no_model(tmp_path: Path) -> None:
         read_view(path)
 
 
-def _without_geometry(manifest: Path) -> str:
-    """The manifest's text without its own ``[geometry]`` (the shipped ones end with it)."""
-    return manifest.read_text().split("\n[geometry]")[0]
+def _sim_cell(tmp_path: Path, geometry: str = "", robot: tuple[str, str] = ("", "")) -> Path:
+    """The simulated cell's manifest for the monitor, with ``geometry`` as its only
+    ``[geometry]`` (the shipped one ends with its own, which is left out)."""
+    text = (MANIFESTS / "sim-ur5e.toml").read_text().split("\n[geometry]")[0]
+    path = tmp_path / "cell.toml"
+    path.write_text(text.replace(*robot) + safety_table(tmp_path, sim_port=free_port())
+                    + (f"\n[geometry]\n{geometry}" if geometry else ""))
+    return path
 
 
 def test_a_monitor_with_solids_and_no_model_is_refused(tmp_path: Path) -> None:
-    manifest = sim_manifest(tmp_path, free_port())
-    text = _without_geometry(manifest).replace('kinematics = "ur5e"', "")
-    manifest.write_text(text + "\n[geometry]\n" + TABLE)
+    manifest = _sim_cell(tmp_path, TABLE, robot=('kinematics = "ur5e"', ""))
     with pytest.raises(StartError, match=r"cell.toml: robot.kinematics: the monitor checks the "
                        r"arm against \[geometry\] and needs the arm's model"):
         plan(str(manifest))
 
 
 def test_a_monitor_with_geometry_checks_space(tmp_path: Path) -> None:
-    manifest = sim_manifest(tmp_path, free_port())
-    plain = _without_geometry(manifest)
-    manifest.write_text(plain + "\n[geometry]\n" + TABLE)
-    chosen = plan(str(manifest))
+    chosen = plan(str(_sim_cell(tmp_path, TABLE)))
     assert chosen.space is not None and chosen.space.solids == ("table",)
-    manifest.write_text(plain)
-    assert plan(str(manifest)).space is None
+    assert plan(str(_sim_cell(tmp_path))).space is None
 
 
 # -- in a running cell: warden drives the UR emulator, the monitor watches its own copy ------
