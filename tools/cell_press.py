@@ -100,15 +100,13 @@ def press_goal(press: Press, manifest_path: Path) -> np.ndarray:
     return press.goal(context, np.asarray(staging))
 
 
-def pressing_manifest(base: Path, port: int, directory: Path, cycle_timeout_s: float = 20.0,
-                      ) -> Path:
+def pressing_manifest(base: Path, port: int, directory: Path) -> Path:
     """``base`` for one cycle against a policy server on ``port``, with its own operator
     socket (the default one may be another warden's)."""
     text = base.read_text()
     changes = ((r"(?m)^launch = true( *)#", r"launch = false\1#"),
                (r"(?m)^port = 0( *)#", rf"port = {port}\1#"),
-               (r"(?m)^cycles = \d+", "cycles = 1"),
-               (r"(?m)^cycle_timeout_s = [\d.]+", f"cycle_timeout_s = {cycle_timeout_s}"))
+               (r"(?m)^cycles = \d+", "cycles = 1"))
     for pattern, new in changes:
         text, count = re.subn(pattern, new, text, count=1)
         if count != 1:
