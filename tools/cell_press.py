@@ -241,8 +241,8 @@ def judge(run: Path, scene: Scene | None = None) -> Judgement:
         if line["kind"] == "chunk" and line["decision"] not in ("ADMITTED", "TRIMMED"):
             for reason in line["reasons"]:
                 refusals[reason] = refusals.get(reason, 0) + 1
-            if "COLLISION" in line["reasons"] and line.get("detail"):
-                details.append(line["detail"])
+            if "COLLISION" in line["reasons"]:
+                details.append(json.dumps(line.get("collision") or line.get("detail")))
     lowest = {key: min(m[key] for m in measured) for key in measured[0]} if measured else {}
     return Judgement(len(measured), lowest,
                      sum(m["peg_bottom_z"] < TABLE_TOP_Z for m in measured), refusals, details)
