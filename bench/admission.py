@@ -127,7 +127,8 @@ def _admit(core: Core, event: Event) -> tuple[Line, ...]:
     for effect in step.effects:
         if isinstance(effect, Compute):
             config = core.config
-            result = run_job(effect.job, config.limits, config.cartesian)
+            result = run_job(effect.job, config.limits, config.cartesian,
+                             config.collision)
             lines += _admit(core, ComputedEvent(t=event.t, result=result))
     return lines
 

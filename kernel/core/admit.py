@@ -41,6 +41,8 @@ from assurance.reasons import ReasonCode as R
 from assurance.reasons import canonical
 from kernel.core.effects import ChunkDecision, Compute
 from kernel.core.jobs import (
+    ClearanceJob,
+    ClearanceResult,
     Job,
     JobFailed,
     JobResult,
@@ -50,11 +52,13 @@ from kernel.core.jobs import (
     ProjectResult,
     array_of,
     rows_of,
+    run_job,
 )
-from kernel.core.lines import ChunkLine, Decision
+from kernel.core.lines import ChunkLine, CollisionLine, Decision
 from kernel.core.state import CoreState
 
 _PROJECTION_DIGITS = 9
+_CLEARANCE_DIGITS = 6
 _MAX_PROJECTION_JOBS = 2
 """A chunk whose merge changed while its projection ran is projected again once more in a job;
 after that, inline (rare: the queue changed under it twice)."""
@@ -69,6 +73,9 @@ class Parked:
     job: Job
     mapped: Mapped | None = None
     projection_jobs: int = 0
+    projected: tuple[ProjectJob, ProjectResult] | None = None
+    checked: tuple[ClearanceJob, ClearanceResult] | None = None
+    clearance_jobs: int = 0
 
 
 def admit(state: CoreState, chunk: Chunk | MalformedChunk) -> None:
@@ -90,7 +97,7 @@ def admit(state: CoreState, chunk: Chunk | MalformedChunk) -> None:
             job_id=state.next_job_id(), actions=rows_of(chunk.actions),
             anchor=tuple(_anchor(state, chunk).tolist()))))
         return
-    _evaluate(state, chunk, seen, None, None)
+    _evaluate(state, chunk, seen, None)
 
 
 def on_computed(state: CoreState, result: JobResult) -> None:
@@ -103,9 +110,15 @@ def on_computed(state: CoreState, result: JobResult) -> None:
         _decide(state, chunk.chunk_id, (R.INFEASIBLE,), detail=f"not checked: {result.detail}")
     elif isinstance(result, MapResult):
         parked.mapped = _mapped(result, chunk, state)
-        _evaluate(state, chunk, parked.seen, parked, None)
-    else:
-        _evaluate(state, chunk, parked.seen, parked, result)
+        _evaluate(state, chunk, parked.seen, parked)
+    elif isinstance(result, ProjectResult) and isinstance(parked.job, ProjectJob):
+        parked.projected = (parked.job, result)
+        _evaluate(state, chunk, parked.seen, parked)
+    elif isinstance(result, ClearanceResult) and isinstance(parked.job, ClearanceJob):
+        parked.checked = (parked.job, result)
+        _evaluate(state, chunk, parked.seen, parked)
+    else:  # a result of another kind than the job asked for (a journal edited by hand)
+        _decide(state, chunk.chunk_id, (R.INFEASIBLE,), detail="not checked: wrong result")
 
 
 def _ignore_duplicate(state: CoreState, chunk: Chunk) -> None:
@@ -133,8 +146,7 @@ def _worth_mapping(state: CoreState, chunk: Chunk, seen: Seen) -> bool:
     return _NOT_PLANNED.isdisjoint(reasons)
 
 
-def _evaluate(state: CoreState, chunk: Chunk, seen: Seen, parked: Parked | None,
-              exact: ProjectResult | None) -> None:
+def _evaluate(state: CoreState, chunk: Chunk, seen: Seen, parked: Parked | None) -> None:
     ctx = state.context()
     t_obs = state.observations.time_of(chunk.observation_id)
     reasons = content_reasons(chunk, ctx)
@@ -154,14 +166,24 @@ def _evaluate(state: CoreState, chunk: Chunk, seen: Seen, parked: Parked | None,
         if _can_plan(joints, timing, reasons):
             inputs = _inputs(state, joints, timing, t_obs)
             draft = draft_merge(state.queue, inputs, state.config.limits)
-            projection = _projection(state, draft, parked, exact)
+            projection = _projection(state, draft, parked)
             if projection is None:
                 _park(state, _projecting(state, chunk, seen, parked, draft))
                 return
             plan = draft.finish(projection, inputs)
+    collision = None
     if plan is not None:
         reasons += _feasibility_reasons(state, plan)
+        if not reasons and state.config.collision is not None:
+            job = _clearance_job(state, plan)
+            collision = _clearance(state, job, parked)
+            if collision is None:
+                _park(state, _checking(state, chunk, seen, parked, job))
+                return
+            reasons += [] if collision.clear else [R.COLLISION]
     extras = _measurements(state, t_obs, plan, drift)
+    if collision is not None and not collision.clear:
+        extras["collision"] = _collision_line(collision)
     if unmappable:
         extras["detail"] = unmappable
     if reasons:
@@ -170,15 +192,16 @@ def _evaluate(state: CoreState, chunk: Chunk, seen: Seen, parked: Parked | None,
     _commit(state, chunk, plan, t_obs, extras)
 
 
-def _projection(state: CoreState, draft: MergeDraft, parked: Parked | None,
-                exact: ProjectResult | None) -> Projection | None:
+def _projection(state: CoreState, draft: MergeDraft, parked: Parked | None) -> Projection | None:
     """The draft's projection: the fast check's, the job's (if it was for these very rows
     and reference), or None when a job must compute it."""
     limits, dt_s = state.config.limits, draft.dt * 1e-9
     fast = project_fast(draft.rows, draft.reference, dt_s, limits)
     if fast is not None:
         return fast
-    if exact is not None and parked is not None and _same_inputs(parked.job, draft):
+    if parked is not None and parked.projected is not None and _same_inputs(
+            parked.projected[0], draft):
+        exact = parked.projected[1]
         width = limits.dim
         actions = array_of(exact.actions, width)
         return Projection(actions, np.array(exact.distances), exact.recoverable,
@@ -188,8 +211,8 @@ def _projection(state: CoreState, draft: MergeDraft, parked: Parked | None,
     return None
 
 
-def _same_inputs(job: Job, draft: MergeDraft) -> bool:
-    return isinstance(job, ProjectJob) and job.dt_ns == draft.dt and (
+def _same_inputs(job: ProjectJob, draft: MergeDraft) -> bool:
+    return job.dt_ns == draft.dt and (
         job.rows == rows_of(draft.rows)) and job.ref_q == tuple(draft.reference.q.tolist()) and (
         job.ref_step == tuple(draft.reference.step.tolist()))
 
@@ -204,6 +227,50 @@ def _projecting(state: CoreState, chunk: Chunk, seen: Seen, parked: Parked | Non
     parked.job = job
     parked.projection_jobs += 1
     return parked
+
+
+def _clearance_job(state: CoreState, plan: MergePlan) -> ClearanceJob:
+    """The clearance check of the rows the plan would queue, from the setpoint they follow."""
+    arm = state.config.limits.arm_mask
+    actions = plan.projection.actions
+    collision = state.config.collision
+    grip = state.config.limits.gripper_index
+    held = collision is not None and (collision.holds(state.motion.gripper) or (
+        grip is not None and any(collision.holds(g) for g in actions[:, grip].tolist())))
+    return ClearanceJob(job_id=0, rows=rows_of(actions[:, arm]),
+                        start=tuple(plan.segment.ref_q[arm].tolist()),
+                        phase=str(state.task.phase), held=held)
+
+
+def _clearance(state: CoreState, job: ClearanceJob,
+               parked: Parked | None) -> ClearanceResult | None:
+    """The check's result if a job computed it for these very rows (else None: a job must),
+    or computed here after the queue changed under two jobs already (rare)."""
+    if parked is not None and parked.checked is not None:
+        asked, result = parked.checked
+        if msgspec.structs.replace(asked, job_id=0) == job:
+            return result
+    if parked is not None and parked.clearance_jobs >= _MAX_PROJECTION_JOBS:
+        found = run_job(job, state.config.limits, None, state.config.collision)
+        return found if isinstance(found, ClearanceResult) else None
+    return None
+
+
+def _checking(state: CoreState, chunk: Chunk, seen: Seen, parked: Parked | None,
+              job: ClearanceJob) -> Parked:
+    job = msgspec.structs.replace(job, job_id=state.next_job_id())
+    if parked is None:
+        parked = Parked(chunk, seen, job)
+    parked.job = job
+    parked.clearance_jobs += 1
+    return parked
+
+
+def _collision_line(result: ClearanceResult) -> CollisionLine:
+    return CollisionLine(pair=result.pair, action=result.action,
+                         distance=round(result.distance, _CLEARANCE_DIGITS),
+                         bound=round(result.bound, _CLEARANCE_DIGITS),
+                         needed=round(result.needed, _CLEARANCE_DIGITS))
 
 
 def _park(state: CoreState, parked: Parked) -> None:
