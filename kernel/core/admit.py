@@ -55,6 +55,7 @@ from kernel.core.jobs import (
     run_job,
 )
 from kernel.core.lines import ChunkLine, CollisionLine, Decision
+from kernel.core.motion import move_checked
 from kernel.core.state import CoreState
 
 _PROJECTION_DIGITS = 9
@@ -101,7 +102,16 @@ def admit(state: CoreState, chunk: Chunk | MalformedChunk) -> None:
 
 
 def on_computed(state: CoreState, result: JobResult) -> None:
-    """A job's result: finish the parked chunk's admission with it."""
+    """A job's result: finish the parked chunk's admission with it (or clear or refuse the
+    planned move it was asked for)."""
+    if result.job_id == state.motion.move_check:
+        if isinstance(result, ClearanceResult):
+            move_checked(state.motion, result, state.t, state.emit)
+        else:  # the check could not run: the move is not played unchecked
+            move_checked(state.motion, ClearanceResult(
+                job_id=result.job_id, clear=False, pair=("not", "checked")), state.t,
+                state.emit)
+        return
     parked = state.parked.pop(result.job_id, None)
     if parked is None:
         return  # not asked for by this core (a journal edited by hand): nothing to finish

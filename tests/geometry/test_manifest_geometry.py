@@ -29,7 +29,8 @@ def refused(path: Path, old: str, new: str) -> str:
 
 
 @pytest.mark.parametrize(("old", "new", "message"), [
-    ('allow_contact = ["CONTACT", "VERIFY"]', 'allow_contact = ["CONTACT", "INSERT"]',
+    ('allow_contact = ["CONTACT", "VERIFY", "RETREAT"]',
+     'allow_contact = ["CONTACT", "INSERT", "RETREAT"]',
      "geometry.obstacles[1].allow_contact[1]: unknown phase 'INSERT'"),
     ("PRE_CONTACT = 0.002", "PRECONTACT = 0.002",
      "geometry.phase_margin_m.PRECONTACT: unknown phase 'PRECONTACT'"),

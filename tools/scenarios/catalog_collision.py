@@ -14,13 +14,13 @@ from tools.scenarios.base import state as st
 GEOMETRY: dict[str, Any] = {
     "margin_m": 0.01,
     "self_collision": True,
-    "phase_margin_m": {"PRE_CONTACT": 0.002, "CONTACT": 0.0, "VERIFY": 0.0, "RETREAT": 0.003},
+    "phase_margin_m": {"PRE_CONTACT": 0.002, "CONTACT": 0.0, "VERIFY": 0.0, "RETREAT": 0.002},
     "part": {"shape": "box", "size": [0.01, 0.01, 0.03], "position": [0.0, 0.0, 0.0175]},
     "obstacles": [
         {"name": "table", "shape": "box", "size": [0.6, 0.6, 0.025],
          "position": [-0.35, 0.0, -0.025], "allow_contact": ["FREE_SPACE"]},
         {"name": "fixture", "shape": "box", "size": [0.02575, 0.02575, 0.015],
-         "position": [-0.55, -0.15, 0.015], "allow_contact": ["CONTACT", "VERIFY"]},
+         "position": [-0.55, -0.15, 0.015], "allow_contact": ["CONTACT", "VERIFY", "RETREAT"]},
     ],
 }
 """The shipped cell's [geometry] (tests/geometry/test_scenarios_geometry.py keeps them equal)."""
@@ -127,6 +127,28 @@ def collision_free_approach_admitted() -> ScenarioSpec:
     )
 
 
+def collision_planner_move_refused() -> ScenarioSpec:
+    """The planner's own moves are checked the same way, before the first step plays."""
+    planner = {"FREE_SPACE": {"executor": "planner"}}
+    return ScenarioSpec(
+        name="collision_planner_move_refused",
+        description="A classical move the task asks for in FREE_SPACE (the planner owns "
+                    "motion) would lower the upper arm into the table: its clearance is "
+                    "checked once it is planned, before it plays; it is refused naming the "
+                    "pair, and the arm stays at rest. The move back up is planned and played.",
+        robot=_robot(), geometry=GEOMETRY, phases=planner,
+        session=session(phase="FREE_SPACE", state=list(ELBOW_START)),
+        events=[st(0, list(ELBOW_START)),
+                event(10, "move", move_id=1, target=list(ELBOW_END)),
+                event(40, "move", move_id=2, target=[0.0, -0.2, -2.6, -1.0, -1.5708, 0.0])],
+        until=60,
+        expect=[{"kind": "motion", "request": "move", "decision": "refused", "move_id": 1},
+                {"kind": "motion", "request": "move", "decision": "planned", "move_id": 2},
+                {"kind": "tick", "t": 38, "owner": "planner", "phase": "FREE_SPACE"}],
+        forbid=[{"kind": "motion", "decision": "planned", "move_id": 1}],
+    )
+
+
 SCENARIOS = (collision_into_the_table, collision_into_the_fixture,
              collision_elbow_into_the_table, collision_wrist_into_the_upper_arm,
-             collision_free_approach_admitted)
+             collision_free_approach_admitted, collision_planner_move_refused)
