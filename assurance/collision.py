@@ -185,15 +185,17 @@ class CellCollision:
         each joint's axis (its centre's distance plus its bounding radius; 1 per metre for a
         prismatic joint), where the joint moves it."""
         centres = np.array([placement.translation for placement in data.oMg])
-        radius = np.zeros_like(geometry.radii)
-        for q_index, joint in enumerate(geometry.joint_of_q.tolist()):
-            placement = self._data.oMi[joint]
-            axis = geometry.axes[q_index]
-            if axis is None:
-                radius[:, q_index] = 1.0
-                continue
-            arm = centres - placement.translation
-            radius[:, q_index] = np.linalg.norm(np.cross(placement.rotation @ axis, arm), axis=1)
+        placements = [self._data.oMi[joint] for joint in geometry.joint_of_q.tolist()]
+        origins = np.array([placement.translation for placement in placements])
+        axes = np.array([placement.rotation @ axis for placement, axis in
+                         zip(placements, geometry.axis_array, strict=True)])
+        arm = centres[:, None, :] - origins[None, :, :]  # (geoms, dof, 3)
+        ax, ay, az = axes[:, 0], axes[:, 1], axes[:, 2]
+        cx = ay * arm[..., 2] - az * arm[..., 1]
+        cy = az * arm[..., 0] - ax * arm[..., 2]
+        cz = ax * arm[..., 1] - ay * arm[..., 0]
+        radius = np.sqrt(cx * cx + cy * cy + cz * cz)
+        radius[:, geometry.prismatic] = 1.0
         return np.where(geometry.radii > 0.0, radius + geometry.rho[:, None], 0.0)
 
     def _distance_row(self, q: np.ndarray, pairs: _Pairs) -> np.ndarray:
@@ -253,6 +255,10 @@ class _Geometry:
     """Per configuration coordinate, its joint's axis in the joint's frame (None: prismatic)."""
     rho: np.ndarray
     """Per geom, its bounding radius about its placement's origin."""
+    axis_array: np.ndarray
+    """(dof, 3): the axes, a prismatic joint's as zeros."""
+    prismatic: np.ndarray
+    """Per configuration coordinate, whether its joint is prismatic."""
 
 
 def _with_part(model: pin.Model, arm: pin.GeometryModel, settings: CollisionSettings,
@@ -275,8 +281,10 @@ def _with_part(model: pin.Model, arm: pin.GeometryModel, settings: CollisionSett
         joint_of_q[model.joints[joint].idx_q] = joint
     axes = tuple(_axis(model.joints[joint]) for joint in joint_of_q.tolist())
     rho = np.array([_bounding_radius(g.geometry) for g in geometry.geometryObjects])
+    prismatic = np.array([axis is None for axis in axes])
+    axis_array = np.array([np.zeros(3) if axis is None else axis for axis in axes])
     return _Geometry(geometry, tuple(roles), joints, _radii(model, geometry), joint_of_q, axes,
-                     rho)
+                     rho, axis_array, prismatic)
 
 
 def _axis(joint: pin.JointModel) -> np.ndarray | None:
