@@ -31,37 +31,23 @@ per thread.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from enum import StrEnum
 
-import coal
 import numpy as np
 import pinocchio as pin
 
 from assurance.kinematics import ArmKinematics
-
-
-class Shape(StrEnum):
-    BOX = "box"
-    SPHERE = "sphere"
-    CYLINDER = "cylinder"
-    CAPSULE = "capsule"
-
-
-@dataclass(frozen=True, slots=True)
-class SolidSpec:
-    """A primitive solid: MuJoCo-style sizes (half extents; radius and half length)."""
-
-    name: str
-    shape: Shape
-    size: tuple[float, ...]
-    position: tuple[float, float, float]
-    rotation: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    """Roll, pitch, yaw about the fixed x, y, z axes (radians)."""
-    allow_contact: frozenset[str] = frozenset()
-    """Phases in which the tool and the held part may touch it (obstacles only)."""
-    keep_out: bool = False
+from assurance.solids import (
+    Shape,
+    SolidSpec,
+    arm_geometry,
+    bounding_radius,
+    coal_shape,
+    joint_axis,
+    joint_reach,
+    placement,
+)
 
 
 @dataclass(frozen=True, slots=True)
@@ -127,14 +113,14 @@ class CellCollision:
     def __init__(self, kinematics: ArmKinematics, settings: CollisionSettings) -> None:
         """Raises:
             ValueError: the robot model has no collision geoms."""
-        arm_geometry = _arm_geometry(kinematics)
+        arm = arm_geometry(kinematics)
         self.kinematics = kinematics
         self.settings = settings
         self.model = kinematics.model
         self._data = self.model.createData()
         self._tcp = self.model.getFrameId(kinematics.config.tcp_frame)
-        self._held = _with_part(self.model, arm_geometry, settings, self._tcp, held=True)
-        self._free = _with_part(self.model, arm_geometry, settings, self._tcp, held=False)
+        self._held = _with_part(self.model, arm, settings, self._tcp, held=True)
+        self._free = _with_part(self.model, arm, settings, self._tcp, held=False)
         self._cache: dict[tuple[str, bool], _Pairs] = {}
 
     @property
@@ -225,22 +211,6 @@ def _travel(step: np.ndarray, radius: np.ndarray, bound: np.ndarray,
     return np.einsum("aj,apj->ap", step, moving)
 
 
-def _arm_geometry(kinematics: ArmKinematics) -> pin.GeometryModel:
-    """The model's collision geoms on the arm's model (the other joints locked as
-    :class:`ArmKinematics` locks them)."""
-    config = kinematics.config
-    if config.collision is None or not config.collision.geometryObjects:
-        raise ValueError(f"{config.source} has no collision geoms (primitive geoms of an MJCF "
-                         "model): [geometry] needs them")
-    full = config.model
-    locked = [full.getJointId(full.names[j]) for j in range(1, full.njoints)
-              if full.names[j] not in config.arm_joints]
-    if not locked:
-        return config.collision.copy()
-    _, geometries = pin.buildReducedModel(full, [config.collision], locked, pin.neutral(full))
-    return geometries[0]
-
-
 @dataclass(frozen=True, slots=True, eq=False)
 class _Geometry:
     model: pin.GeometryModel
@@ -268,40 +238,23 @@ def _with_part(model: pin.Model, arm: pin.GeometryModel, settings: CollisionSett
     if held and settings.part is not None:
         frame = model.frames[tcp]
         geometry.addGeometryObject(pin.GeometryObject(
-            "part", frame.parentJoint, tcp, frame.placement * _placement(settings.part),
-            _shape(settings.part)))
+            "part", frame.parentJoint, tcp, frame.placement * placement(settings.part),
+            coal_shape(settings.part)))
         roles.append(_Robot.PART)
     for solid in settings.solids:
         geometry.addGeometryObject(pin.GeometryObject(
-            solid.name, 0, 0, _placement(solid), _shape(solid)))
+            solid.name, 0, 0, placement(solid), coal_shape(solid)))
         roles.append(solid)
     joints = tuple(int(g.parentJoint) for g in geometry.geometryObjects)
     joint_of_q = np.zeros(model.nq, dtype=int)
     for joint in range(1, model.njoints):
         joint_of_q[model.joints[joint].idx_q] = joint
-    axes = tuple(_axis(model.joints[joint]) for joint in joint_of_q.tolist())
-    rho = np.array([_bounding_radius(g.geometry) for g in geometry.geometryObjects])
+    axes = tuple(joint_axis(model.joints[joint]) for joint in joint_of_q.tolist())
+    rho = np.array([bounding_radius(g.geometry) for g in geometry.geometryObjects])
     prismatic = np.array([axis is None for axis in axes])
     axis_array = np.array([np.zeros(3) if axis is None else axis for axis in axes])
-    return _Geometry(geometry, tuple(roles), joints, _radii(model, geometry), joint_of_q, axes,
+    return _Geometry(geometry, tuple(roles), joints, joint_reach(model, geometry), joint_of_q, axes,
                      rho, axis_array, prismatic)
-
-
-def _axis(joint: pin.JointModel) -> np.ndarray | None:
-    """A revolute joint's axis in its own frame; None for a prismatic one.
-
-    Raises:
-        ValueError: a joint of another kind (the arm's joints are 1-DoF)."""
-    name = joint.shortname()
-    fixed = {"JointModelRX": (1.0, 0.0, 0.0), "JointModelRY": (0.0, 1.0, 0.0),
-             "JointModelRZ": (0.0, 0.0, 1.0)}
-    if name in fixed:
-        return np.array(fixed[name])
-    if name == "JointModelRevoluteUnaligned":
-        return np.array(joint.axis, dtype=float)
-    if name.startswith("JointModelP"):
-        return None
-    raise ValueError(f"joint of kind {name} is not a 1-DoF revolute or prismatic joint")
 
 
 def _role(model: pin.Model, geom: pin.GeometryObject, tcp_frame: int) -> _Robot:
@@ -375,49 +328,6 @@ def _contact_allowed(kind: PairKind, a: _Robot | SolidSpec, b: _Robot | SolidSpe
     robot, solid = (a, b) if isinstance(b, SolidSpec) else (b, a)
     return (robot in (_Robot.TOOL, _Robot.PART) and isinstance(solid, SolidSpec)
             and phase in solid.allow_contact)
-
-
-def _radii(model: pin.Model, geometry: pin.GeometryModel) -> np.ndarray:
-    """R[g, j]: a bound on the distance of any point of geom g from the origin of the arm's
-    joint j, for the joints that move g (the chain's lengths: configuration-independent)."""
-    radii = np.zeros((len(geometry.geometryObjects), model.nq))
-    for g, geom in enumerate(geometry.geometryObjects):
-        reach = float(np.linalg.norm(geom.placement.translation)) + _bounding_radius(
-            geom.geometry)
-        joint = int(geom.parentJoint)
-        while joint > 0:
-            radii[g, model.joints[joint].idx_q] = reach
-            reach += float(np.linalg.norm(model.jointPlacements[joint].translation))
-            joint = int(model.parents[joint])
-    return radii
-
-
-def _bounding_radius(shape: coal.CollisionGeometry) -> float:
-    if isinstance(shape, coal.Box):
-        return float(np.linalg.norm(shape.halfSide))
-    if isinstance(shape, coal.Sphere):
-        return float(shape.radius)
-    if isinstance(shape, coal.Capsule):
-        return float(shape.radius + shape.halfLength)
-    if isinstance(shape, coal.Cylinder):
-        return float(math.hypot(shape.radius, shape.halfLength))
-    shape.computeLocalAABB()
-    return float(shape.aabb_radius)
-
-
-def _shape(solid: SolidSpec) -> coal.CollisionGeometry:
-    size = solid.size
-    if solid.shape is Shape.BOX:
-        return coal.Box(2.0 * size[0], 2.0 * size[1], 2.0 * size[2])
-    if solid.shape is Shape.SPHERE:
-        return coal.Sphere(size[0])
-    if solid.shape is Shape.CYLINDER:
-        return coal.Cylinder(size[0], 2.0 * size[1])
-    return coal.Capsule(size[0], 2.0 * size[1])
-
-
-def _placement(solid: SolidSpec) -> pin.SE3:
-    return pin.SE3(pin.rpy.rpyToMatrix(*solid.rotation), np.array(solid.position, dtype=float))
 
 
 __all__ = ["CellCollision", "Clearance", "CollisionSettings", "PairKind", "Shape", "SolidSpec"]

@@ -39,6 +39,7 @@ from assurance.merge import MergeDraft, MergeInputs, MergePlan, draft_merge
 from assurance.projection import Projection, project, project_fast
 from assurance.reasons import ReasonCode as R
 from assurance.reasons import canonical
+from kernel.core.clearance import clearance_job, collision_line
 from kernel.core.effects import ChunkDecision, Compute
 from kernel.core.jobs import (
     ClearanceJob,
@@ -54,12 +55,11 @@ from kernel.core.jobs import (
     rows_of,
     run_job,
 )
-from kernel.core.lines import ChunkLine, CollisionLine, Decision
+from kernel.core.lines import ChunkLine, Decision
 from kernel.core.motion import move_checked
 from kernel.core.state import CoreState
 
 _PROJECTION_DIGITS = 9
-_CLEARANCE_DIGITS = 6
 _MAX_PROJECTION_JOBS = 2
 """A chunk whose merge changed while its projection ran is projected again once more in a job;
 after that, inline (rare: the queue changed under it twice)."""
@@ -185,7 +185,7 @@ def _evaluate(state: CoreState, chunk: Chunk, seen: Seen, parked: Parked | None)
     if plan is not None:
         reasons += _feasibility_reasons(state, plan)
         if not reasons and state.config.collision is not None:
-            job = _clearance_job(state, plan)
+            job = clearance_job(state, plan)
             collision = _clearance(state, job, parked)
             if collision is None:
                 _park(state, _checking(state, chunk, seen, parked, job))
@@ -193,7 +193,7 @@ def _evaluate(state: CoreState, chunk: Chunk, seen: Seen, parked: Parked | None)
             reasons += [] if collision.clear else [R.COLLISION]
     extras = _measurements(state, t_obs, plan, drift)
     if collision is not None and not collision.clear:
-        extras["collision"] = _collision_line(collision)
+        extras["collision"] = collision_line(collision)
     if unmappable:
         extras["detail"] = unmappable
     if reasons:
@@ -239,19 +239,6 @@ def _projecting(state: CoreState, chunk: Chunk, seen: Seen, parked: Parked | Non
     return parked
 
 
-def _clearance_job(state: CoreState, plan: MergePlan) -> ClearanceJob:
-    """The clearance check of the rows the plan would queue, from the setpoint they follow."""
-    arm = state.config.limits.arm_mask
-    actions = plan.projection.actions
-    collision = state.config.collision
-    grip = state.config.limits.gripper_index
-    held = collision is not None and (collision.holds(state.motion.gripper) or (
-        grip is not None and any(collision.holds(g) for g in actions[:, grip].tolist())))
-    return ClearanceJob(job_id=0, rows=rows_of(actions[:, arm]),
-                        start=tuple(plan.segment.ref_q[arm].tolist()),
-                        phase=str(state.task.phase), held=held)
-
-
 def _clearance(state: CoreState, job: ClearanceJob,
                parked: Parked | None) -> ClearanceResult | None:
     """The check's result if a job computed it for these very rows (else None: a job must),
@@ -274,13 +261,6 @@ def _checking(state: CoreState, chunk: Chunk, seen: Seen, parked: Parked | None,
     parked.job = job
     parked.clearance_jobs += 1
     return parked
-
-
-def _collision_line(result: ClearanceResult) -> CollisionLine:
-    return CollisionLine(pair=result.pair, action=result.action,
-                         distance=round(result.distance, _CLEARANCE_DIGITS),
-                         bound=round(result.bound, _CLEARANCE_DIGITS),
-                         needed=round(result.needed, _CLEARANCE_DIGITS))
 
 
 def _park(state: CoreState, parked: Parked) -> None:
