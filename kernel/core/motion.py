@@ -219,7 +219,7 @@ def _play(m: MotionState, t: int, emit: Callable[[Line], None]) -> None:
     m.move_status = MoveStatus.PLAYING
 
 
-MOVE_CHECK_STEP_S = 0.01
+MOVE_CHECK_STEP_S = 0.02
 """A planned move is checked at this spacing (and the motion between samples bounded)."""
 
 
