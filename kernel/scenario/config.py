@@ -44,6 +44,7 @@ from kernel.scenario.fields import (
     text,
     vector,
 )
+from kernel.scenario.geometry import cell_collision
 from kernel.scenario.kinematics import cartesian_mapper, robot_kinematics
 from kernel.scenario.session import allowlist_section, session_section, state_vector
 from kernel.scenario.trial import trial_bounds
@@ -121,6 +122,7 @@ def build_config(doc: Mapping[str, Any], where: Where,
         cartesian=cartesian, kinematics=kinematics,
         motion=motion_config(mapping(doc, "motion", where, required=False), where.at("motion")),
         envelope=trial_bounds(doc, where, kinematics, envelope),
+        collision=cell_collision(doc, where, kinematics),
     )
 
 
