@@ -127,6 +127,7 @@ def _rules(degrade_after: int) -> dict[R, Rule]:
         Rule(R.CONTACT_ANOMALY, Mode.CONTACT_FALLBACK, _CONTACT_SOURCES),
         Rule(R.STATE_DIVERGED, Mode.SAFE_HOLD, _SOFT),
         Rule(R.STATE_IMPLAUSIBLE, Mode.SAFE_HOLD, _SOFT),
+        Rule(R.COLLISION, Mode.SAFE_HOLD, _SOFT),
         Rule(R.OOD, Mode.SAFE_HOLD, _SOFT),
         Rule(R.HOLD_REQUESTED, Mode.SAFE_HOLD, _SOFT),
         Rule(R.UNDERRUN, Mode.SAFE_HOLD, _SOFT),
@@ -143,7 +144,7 @@ def _rules(degrade_after: int) -> dict[R, Rule]:
 # Chunk-refusal reasons that lead somewhere, most severe first: a refusal that carries several
 # fires only the first that applies.
 REFUSAL_PRIORITY: tuple[R, ...] = (
-    R.STATE_DIVERGED, R.INFEASIBLE, R.CHECKPOINT_NOT_ALLOWED, R.CONFIG_MISMATCH,
+    R.STATE_DIVERGED, R.COLLISION, R.INFEASIBLE, R.CHECKPOINT_NOT_ALLOWED, R.CONFIG_MISMATCH,
     R.SCHEMA_MISMATCH, R.CONTROLLER_MODE_MISMATCH, R.CALIBRATION_MISMATCH, R.ID_CONFLICT,
     R.OBSERVATION_STALE, R.EXPIRED, R.TRIM_FORBIDDEN, R.REORDERED, R.CLOCK_INVALID,
     R.UNKNOWN_OBSERVATION, R.NONFINITE, R.MALFORMED,

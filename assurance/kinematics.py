@@ -52,6 +52,9 @@ class KinematicsConfig:
     """Where the model came from (named in errors)."""
     sha256: str = ""
     """SHA-256 of the very bytes ``model`` was parsed from (empty: built in memory)."""
+    collision: pin.GeometryModel | None = None
+    """The model's collision geoms on ``model`` (from the same bytes), where the file has
+    them (MJCF primitive geoms); :mod:`assurance.collision` checks clearances with them."""
 
 
 @dataclass(frozen=True, slots=True)

@@ -82,6 +82,11 @@ class ReasonCode(StrEnum):
     position step too large for the time since the last plausible sample, or off the path its
     reported velocities integrate to): it is never a measurement, never a hold target; the
     arm holds where it was last plausibly measured (SAFE_HOLD)."""
+    COLLISION = "COLLISION"
+    """An action of the chunk, or the motion into it, would bring two of the cell's solids
+    closer than the phase's clearance (the arm's links, tool or held part against an
+    obstacle or a keep-out zone, or two non-adjacent links against each other): the chunk is
+    refused and the arm holds where its checked motion left it (SAFE_HOLD)."""
 
 
 _ORDER = {code: index for index, code in enumerate(ReasonCode)}

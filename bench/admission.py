@@ -1,11 +1,14 @@
 """Admission cost and replay speed of the assurance core (issue 2 targets).
 
-Prints, for 50x6 and 50x7 chunks:
+Prints, for 50x6 and 50x7 chunks (and 50x7 with the shipped cell's [geometry]):
   - wire decode only (msgspec MessagePack, actions as raw bytes),
   - a stdlib-json decode of the same chunk (what a json-based client pays just to parse),
   - full admission: decode + every gate + merge + projection + queue commit + log line,
   - full admission of a chunk that needs the exact (sequential) projection,
-as p50 / p99 in microseconds, and the replay speed of a 60 s scenario at a 2 ms control period
+as p50 / p99 in microseconds; with [geometry], the admission's part on the control loop (every
+step the chunk takes, its clearance job's result included) and the clearance job itself (which
+a live run sends to the job worker), both against the same chunks without geometry in the same
+run; and the replay speed of a 60 s scenario at a 2 ms control period
 as a multiple of real time. Figures are printed, never asserted (the machine is shared and
 noisy); compare the ratios within one run. Where Linux perf events are available, the user-space
 instructions and cycles of one full admission are printed too: the instruction count does not
@@ -48,18 +51,21 @@ from kernel.core.lines import Line, encode
 from kernel.core.runtime import Core
 from kernel.scenario.fields import Where
 from kernel.scenario.load import Scenario
-from tools.scenarios.base import IDENTITY, ScenarioSpec, phases
+from tools.scenarios.base import IDENTITY, ScenarioSpec, phases, robot
+from tools.scenarios.catalog_collision import GEOMETRY
 
 MS = 1_000_000
 HORIZON = 50
 DT_MS = 10
 
 
-def _config(dim: int):  # type: ignore[no-untyped-def]
+def _config(dim: int, geometry: bool = False):  # type: ignore[no-untyped-def]
     generous = phases()
     generous["PRE_CONTACT"].update(max_projection=0.5, max_divergence=0.5)
     spec = ScenarioSpec(name="bench", description="", events=[], until=0, expect=[],
-                        gripper=dim == 7, phases=generous)
+                        gripper=dim == 7, phases=generous,
+                        robot={**robot(dim == 7), "kinematics": "ur5e"} if geometry else None,
+                        geometry=GEOMETRY if geometry else None)
     return build_config(spec.document(), Where("bench", ""))
 
 
@@ -127,9 +133,46 @@ def _admit(core: Core, event: Event) -> tuple[Line, ...]:
     for effect in step.effects:
         if isinstance(effect, Compute):
             config = core.config
-            result = run_job(effect.job, config.limits, config.cartesian)
+            result = run_job(effect.job, config.limits, config.cartesian,
+                             config.collision)
             lines += _admit(core, ComputedEvent(t=event.t, result=result))
     return lines
+
+
+def _geometry_cost(samples: int) -> dict[str, tuple[float, float]]:
+    """50x7 feasible chunks, with and without the cell's geometry, interleaved: the core's
+    steps (on the loop) and the clearance job (in the worker on a live run), apart."""
+    cores = {with_geometry: Core(_config(7, with_geometry)) for with_geometry in (False, True)}
+    loop: dict[bool, list[int]] = {False: [], True: []}
+    job: list[int] = []
+    for index in range(1, samples + 1):
+        t_ms = index * 4.0
+        t = round((t_ms + 1) * MS)
+        for with_geometry, core in cores.items():
+            core.step(ObservationEvent(t=round(t_ms * MS), observation_id=f"O{index}"))
+            fields = _fields(index, t_ms, core.config.initial_q.copy(), fast=False)
+            frame = msgspec.msgpack.Encoder().encode(to_wire(decode_event_chunk(
+                fields, round(t_ms * MS))))
+            began = time.perf_counter_ns()
+            step = core.step(ChunkEvent(t, decode_wire_chunk(frame, t)))
+            spent = time.perf_counter_ns() - began
+            for effect in step.effects:
+                if isinstance(effect, Compute):
+                    config = core.config
+                    began = time.perf_counter_ns()
+                    result = run_job(effect.job, config.limits, config.cartesian,
+                                     config.collision)
+                    job.append(time.perf_counter_ns() - began)
+                    began = time.perf_counter_ns()
+                    step = core.step(ComputedEvent(t=t, result=result))
+                    spent += time.perf_counter_ns() - began
+            decided = [line for line in step.lines if getattr(line, "decision", None)]
+            if index < 5 and decided[0].decision not in ("accepted", "replaced"):
+                raise RuntimeError(f"benchmark chunk was refused: {decided[0]}")
+            loop[with_geometry].append(spent)
+            core.step(TickEvent(t=t))
+    return {"plain": _percentiles(loop[False]), "loop": _percentiles(loop[True]),
+            "job": _percentiles(job)}
 
 
 def _timed(fn: Callable[[], object]) -> int:
@@ -201,6 +244,14 @@ def main() -> None:
                   "cycles p50 / p99")
         else:
             print(f"  50x{dim}  instruction counts: not available (no perf events here)")
+    geometry = _geometry_cost(min(args.samples, 600))
+    print("  50x7  with [geometry] (the shipped cell's), in the same run:")
+    print(f"  50x7  admission on the loop, no geometry    {geometry['plain'][0]:7.1f} / "
+          f"{geometry['plain'][1]:7.1f}")
+    print(f"  50x7  admission on the loop, with geometry  {geometry['loop'][0]:7.1f} / "
+          f"{geometry['loop'][1]:7.1f}   (both steps: the chunk, its job's result)")
+    print(f"  50x7  clearance job (the worker's part)     {geometry['job'][0]:7.1f} / "
+          f"{geometry['job'][1]:7.1f}")
     gc.enable()
     core_x, log_x, ticks = _replay_speed(args.seconds)
     print(f"replay of a {args.seconds} s scenario ({ticks} ticks at 2 ms, chunks at 10 Hz): "

@@ -49,7 +49,8 @@ from kernel.core.events import (
 )
 
 JOURNAL_FORMAT = "warden-journal/1"
-HEADER_SECTIONS = ("robot", "timing", "phases", "session", "allowlist", "motion", "envelope")
+HEADER_SECTIONS = ("robot", "timing", "phases", "session", "allowlist", "motion", "envelope",
+                   "geometry")
 
 
 def header(sections: Mapping[str, Any], name: str) -> dict[str, Any]:

@@ -56,7 +56,7 @@ class ManifestError(ScenarioError):
     """A manifest that cannot be used; the message names the file and the key."""
 
 
-SCENARIO_SECTIONS = ("robot", "timing", "phases", "session", "allowlist", "motion")
+SCENARIO_SECTIONS = ("robot", "timing", "phases", "session", "allowlist", "motion", "geometry")
 """The sections a manifest shares with a scenario (and a journal's header repeats)."""
 
 
@@ -132,6 +132,10 @@ def _load(path: Path, raw: str) -> Manifest:
         raise where.at("timing").error(
             "missing required key 'state_timeout_ms': a real device needs the state watchdog "
             "(the arm stops when its state samples stop)")
+    if driver_name != "sim" and core.collision is None:
+        raise where.at("geometry").error(
+            "missing required table: a real device needs the cell's geometry (the table, "
+            "fixtures and keep-out zones its motions keep clear of)")
     emulator = _read(EmulatorSettings, doc, "emulator", where)
     driver_settings = decode_driver_settings(driver_name, driver, emulator.launch, where)
     policy = _policy(_read(PolicySettings, doc, "policy", where), where.at("policy"))

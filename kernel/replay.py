@@ -65,7 +65,8 @@ class Replay:
         for effect in step.effects:
             if isinstance(effect, Compute):
                 config = self.core.config
-                result = run_job(effect.job, config.limits, config.cartesian)
+                result = run_job(effect.job, config.limits, config.cartesian,
+                                 config.collision)
                 yield from self._step(ComputedEvent(t=event.t, result=result), False)
 
     def _compare(self, record: CommandRecord) -> None:

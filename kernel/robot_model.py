@@ -76,32 +76,35 @@ def load_kinematics(spec: ModelSpec, dof: int) -> ArmKinematics:
             joints or the tool frame.
     """
     content, sha256 = read_model(spec.path)
-    model = _parse(spec.path, content)
+    model, collision = _parse(spec.path, content)
     names = [model.names[j] for j in range(1, model.njoints)]
     joints = spec.joints if spec.joints is not None else tuple(names[:dof])
     if len(joints) != dof:
         raise ModelError(f"{spec.path}: {len(joints)} arm joints for a robot of {dof}")
-    config = KinematicsConfig(model, spec.tcp_frame, joints, str(spec.path))
+    config = KinematicsConfig(model, spec.tcp_frame, joints, str(spec.path),
+                              collision=collision)
     try:
         return ArmKinematics(replace(config, sha256=sha256))
     except ValueError as error:
         raise ModelError(str(error)) from None
 
 
-def _parse(path: Path, content: bytes) -> pin.Model:
-    """Pinocchio's model from ``content`` (``path`` names it in errors and picks the format)."""
+def _parse(path: Path, content: bytes) -> tuple[pin.Model, pin.GeometryModel | None]:
+    """Pinocchio's model from ``content`` (``path`` names it in errors and picks the format),
+    and its collision geoms (an MJCF's primitive geoms; None for a URDF, whose meshes are
+    other files)."""
     suffix = path.suffix.lower()
     try:
         if suffix == ".xml":
             return _parse_mjcf(content)
         if suffix == ".urdf":
-            return pin.buildModelFromXML(content.decode("utf-8"))
+            return pin.buildModelFromXML(content.decode("utf-8")), None
     except (RuntimeError, ValueError) as error:  # UnicodeDecodeError is a ValueError
         raise ModelError(f"{path}: not a readable model: {error}") from None
     raise ModelError(f"{path}: a robot model must be MJCF (.xml) or URDF (.urdf)")
 
 
-def _parse_mjcf(content: bytes) -> pin.Model:
+def _parse_mjcf(content: bytes) -> tuple[pin.Model, pin.GeometryModel]:
     # Pinocchio's Python binding parses MJCF only from a path: hand it an anonymous in-memory
     # file holding the bytes already hashed, never the model's own path (which could name
     # another file by now).
@@ -110,6 +113,8 @@ def _parse_mjcf(content: bytes) -> pin.Model:
         written = 0
         while written < len(content):
             written += os.write(fd, content[written:])
-        return pin.buildModelFromMJCF(f"/proc/self/fd/{fd}")
+        model = pin.buildModelFromMJCF(f"/proc/self/fd/{fd}")
+        return model, pin.buildGeomFromMJCF(model, f"/proc/self/fd/{fd}",
+                                            pin.GeometryType.COLLISION)
     finally:
         os.close(fd)

@@ -21,6 +21,7 @@ from assurance.limits import JointLimits
 from assurance.policy import ForceBand, LinkLoss, PhasePolicy
 from assurance.watermarks import WatermarkConfig
 from kernel.config.envelope import trial_bounds
+from kernel.config.geometry import cell_collision
 from kernel.config.kinematics import cartesian_mapper, robot_kinematics
 from kernel.config.session import allowlist_section, session_section, state_vector
 from kernel.core.config import CoreConfig, MotionConfig, TrialBounds
@@ -121,6 +122,7 @@ def build_config(doc: Mapping[str, Any], where: Where,
         cartesian=cartesian, kinematics=kinematics,
         motion=motion_config(mapping(doc, "motion", where, required=False), where.at("motion")),
         envelope=trial_bounds(doc, where, kinematics, envelope),
+        collision=cell_collision(doc, where, kinematics),
     )
 
 

@@ -39,8 +39,11 @@ from assurance.merge import MergeDraft, MergeInputs, MergePlan, draft_merge
 from assurance.projection import Projection, project, project_fast
 from assurance.reasons import ReasonCode as R
 from assurance.reasons import canonical
+from kernel.core.clearance import clearance_job, collision_line
 from kernel.core.effects import ChunkDecision, Compute
 from kernel.core.jobs import (
+    ClearanceJob,
+    ClearanceResult,
     Job,
     JobFailed,
     JobResult,
@@ -50,8 +53,10 @@ from kernel.core.jobs import (
     ProjectResult,
     array_of,
     rows_of,
+    run_job,
 )
 from kernel.core.lines import ChunkLine, Decision
+from kernel.core.motion import move_checked
 from kernel.core.state import CoreState
 
 _PROJECTION_DIGITS = 9
@@ -69,6 +74,9 @@ class Parked:
     job: Job
     mapped: Mapped | None = None
     projection_jobs: int = 0
+    projected: tuple[ProjectJob, ProjectResult] | None = None
+    checked: tuple[ClearanceJob, ClearanceResult] | None = None
+    clearance_jobs: int = 0
 
 
 def admit(state: CoreState, chunk: Chunk | MalformedChunk) -> None:
@@ -90,11 +98,20 @@ def admit(state: CoreState, chunk: Chunk | MalformedChunk) -> None:
             job_id=state.next_job_id(), actions=rows_of(chunk.actions),
             anchor=tuple(_anchor(state, chunk).tolist()))))
         return
-    _evaluate(state, chunk, seen, None, None)
+    _evaluate(state, chunk, seen, None)
 
 
 def on_computed(state: CoreState, result: JobResult) -> None:
-    """A job's result: finish the parked chunk's admission with it."""
+    """A job's result: finish the parked chunk's admission with it (or clear or refuse the
+    planned move it was asked for)."""
+    if result.job_id == state.motion.move_check:
+        if isinstance(result, ClearanceResult):
+            move_checked(state.motion, result, state.t, state.emit)
+        else:  # the check could not run: the move is not played unchecked
+            move_checked(state.motion, ClearanceResult(
+                job_id=result.job_id, clear=False, pair=("not", "checked")), state.t,
+                state.emit)
+        return
     parked = state.parked.pop(result.job_id, None)
     if parked is None:
         return  # not asked for by this core (a journal edited by hand): nothing to finish
@@ -103,9 +120,15 @@ def on_computed(state: CoreState, result: JobResult) -> None:
         _decide(state, chunk.chunk_id, (R.INFEASIBLE,), detail=f"not checked: {result.detail}")
     elif isinstance(result, MapResult):
         parked.mapped = _mapped(result, chunk, state)
-        _evaluate(state, chunk, parked.seen, parked, None)
-    else:
-        _evaluate(state, chunk, parked.seen, parked, result)
+        _evaluate(state, chunk, parked.seen, parked)
+    elif isinstance(result, ProjectResult) and isinstance(parked.job, ProjectJob):
+        parked.projected = (parked.job, result)
+        _evaluate(state, chunk, parked.seen, parked)
+    elif isinstance(result, ClearanceResult) and isinstance(parked.job, ClearanceJob):
+        parked.checked = (parked.job, result)
+        _evaluate(state, chunk, parked.seen, parked)
+    else:  # a result of another kind than the job asked for (a journal edited by hand)
+        _decide(state, chunk.chunk_id, (R.INFEASIBLE,), detail="not checked: wrong result")
 
 
 def _ignore_duplicate(state: CoreState, chunk: Chunk) -> None:
@@ -133,8 +156,7 @@ def _worth_mapping(state: CoreState, chunk: Chunk, seen: Seen) -> bool:
     return _NOT_PLANNED.isdisjoint(reasons)
 
 
-def _evaluate(state: CoreState, chunk: Chunk, seen: Seen, parked: Parked | None,
-              exact: ProjectResult | None) -> None:
+def _evaluate(state: CoreState, chunk: Chunk, seen: Seen, parked: Parked | None) -> None:
     ctx = state.context()
     t_obs = state.observations.time_of(chunk.observation_id)
     reasons = content_reasons(chunk, ctx)
@@ -154,14 +176,24 @@ def _evaluate(state: CoreState, chunk: Chunk, seen: Seen, parked: Parked | None,
         if _can_plan(joints, timing, reasons):
             inputs = _inputs(state, joints, timing, t_obs)
             draft = draft_merge(state.queue, inputs, state.config.limits)
-            projection = _projection(state, draft, parked, exact)
+            projection = _projection(state, draft, parked)
             if projection is None:
                 _park(state, _projecting(state, chunk, seen, parked, draft))
                 return
             plan = draft.finish(projection, inputs)
+    collision = None
     if plan is not None:
         reasons += _feasibility_reasons(state, plan)
+        if not reasons and state.config.collision is not None:
+            job = clearance_job(state, plan)
+            collision = _clearance(state, job, parked)
+            if collision is None:
+                _park(state, _checking(state, chunk, seen, parked, job))
+                return
+            reasons += [] if collision.clear else [R.COLLISION]
     extras = _measurements(state, t_obs, plan, drift)
+    if collision is not None and not collision.clear:
+        extras["collision"] = collision_line(collision)
     if unmappable:
         extras["detail"] = unmappable
     if reasons:
@@ -170,15 +202,16 @@ def _evaluate(state: CoreState, chunk: Chunk, seen: Seen, parked: Parked | None,
     _commit(state, chunk, plan, t_obs, extras)
 
 
-def _projection(state: CoreState, draft: MergeDraft, parked: Parked | None,
-                exact: ProjectResult | None) -> Projection | None:
+def _projection(state: CoreState, draft: MergeDraft, parked: Parked | None) -> Projection | None:
     """The draft's projection: the fast check's, the job's (if it was for these very rows
     and reference), or None when a job must compute it."""
     limits, dt_s = state.config.limits, draft.dt * 1e-9
     fast = project_fast(draft.rows, draft.reference, dt_s, limits)
     if fast is not None:
         return fast
-    if exact is not None and parked is not None and _same_inputs(parked.job, draft):
+    if parked is not None and parked.projected is not None and _same_inputs(
+            parked.projected[0], draft):
+        exact = parked.projected[1]
         width = limits.dim
         actions = array_of(exact.actions, width)
         return Projection(actions, np.array(exact.distances), exact.recoverable,
@@ -188,8 +221,8 @@ def _projection(state: CoreState, draft: MergeDraft, parked: Parked | None,
     return None
 
 
-def _same_inputs(job: Job, draft: MergeDraft) -> bool:
-    return isinstance(job, ProjectJob) and job.dt_ns == draft.dt and (
+def _same_inputs(job: ProjectJob, draft: MergeDraft) -> bool:
+    return job.dt_ns == draft.dt and (
         job.rows == rows_of(draft.rows)) and job.ref_q == tuple(draft.reference.q.tolist()) and (
         job.ref_step == tuple(draft.reference.step.tolist()))
 
@@ -203,6 +236,30 @@ def _projecting(state: CoreState, chunk: Chunk, seen: Seen, parked: Parked | Non
         return Parked(chunk, seen, job, projection_jobs=1)
     parked.job = job
     parked.projection_jobs += 1
+    return parked
+
+
+def _clearance(state: CoreState, job: ClearanceJob,
+               parked: Parked | None) -> ClearanceResult | None:
+    """The check's result if a job computed it for these very rows (else None: a job must),
+    or computed here after the queue changed under two jobs already (rare)."""
+    if parked is not None and parked.checked is not None:
+        asked, result = parked.checked
+        if msgspec.structs.replace(asked, job_id=0) == job:
+            return result
+    if parked is not None and parked.clearance_jobs >= _MAX_PROJECTION_JOBS:
+        found = run_job(job, state.config.limits, None, state.config.collision)
+        return found if isinstance(found, ClearanceResult) else None
+    return None
+
+
+def _checking(state: CoreState, chunk: Chunk, seen: Seen, parked: Parked | None,
+              job: ClearanceJob) -> Parked:
+    job = msgspec.structs.replace(job, job_id=state.next_job_id())
+    if parked is None:
+        parked = Parked(chunk, seen, job)
+    parked.job = job
+    parked.clearance_jobs += 1
     return parked
 
 

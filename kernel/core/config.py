@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from assurance.cartesian import CartesianMapper
+from assurance.collision import CellCollision
 from assurance.handshake import AllowList, ClientHello, Session
 from assurance.kinematics import ArmKinematics, WorkspaceBox
 from assurance.limits import JointLimits
@@ -108,6 +109,10 @@ class CoreConfig:
     """A trial's envelope (needs ``kinematics`` for the workspace box); None: no trial."""
     plausibility: Tolerances = field(default_factory=Tolerances)
     """The noise and timing a state sample may carry and still be judged plausible."""
+    collision: CellCollision | None = None
+    """The cell's geometry (``[geometry]``): every chunk's actions, and the motion between
+    them, keep their clearance from the cell's solids and the arm's own links (COLLISION);
+    None: no geometry, no such check."""
 
     def __post_init__(self) -> None:
         if self.control_period_ns <= 0:

@@ -20,6 +20,7 @@ import msgspec
 import numpy as np
 
 from assurance.cartesian import CartesianMapper
+from assurance.collision import CellCollision
 from assurance.limits import JointLimits
 from assurance.projection import Reference, project
 
@@ -44,7 +45,20 @@ class ProjectJob(msgspec.Struct, frozen=True, kw_only=True, tag_field="job", tag
     dt_ns: int
 
 
-Job = MapJob | ProjectJob
+class ClearanceJob(msgspec.Struct, frozen=True, kw_only=True, tag_field="job",
+                   tag="clearance"):
+    """Check the clearance of the arm at every row of ``rows`` (arm joints) and of the motion
+    into it from the one before (the first: from ``start``), in ``phase``, with the part
+    held or not (:mod:`assurance.collision`)."""
+
+    job_id: int
+    rows: Rows
+    start: tuple[float, ...]
+    phase: str
+    held: bool
+
+
+Job = MapJob | ProjectJob | ClearanceJob
 
 
 class MapResult(msgspec.Struct, frozen=True, kw_only=True, tag_field="job", tag="map"):
@@ -62,6 +76,19 @@ class ProjectResult(msgspec.Struct, frozen=True, kw_only=True, tag_field="job", 
     max_distance: float
 
 
+class ClearanceResult(msgspec.Struct, frozen=True, kw_only=True, tag_field="job",
+                      tag="clearance"):
+    """``clear``, or the first action whose motion breaks a pair's clearance (m)."""
+
+    job_id: int
+    clear: bool
+    action: int = 0
+    pair: tuple[str, str] = ("", "")
+    distance: float = 0.0
+    bound: float = 0.0
+    needed: float = 0.0
+
+
 class JobFailed(msgspec.Struct, frozen=True, kw_only=True, tag_field="job", tag="failed"):
     """The job could not be run (the worker died, or refused its input): the chunk it was
     for is refused, never admitted without its check."""
@@ -70,7 +97,7 @@ class JobFailed(msgspec.Struct, frozen=True, kw_only=True, tag_field="job", tag=
     detail: str
 
 
-JobResult = MapResult | ProjectResult | JobFailed
+JobResult = MapResult | ProjectResult | ClearanceResult | JobFailed
 
 
 def rows_of(array: np.ndarray) -> Rows:
@@ -83,11 +110,26 @@ def array_of(rows: Rows, width: int) -> np.ndarray:
     return array
 
 
-def run_job(job: Job, limits: JointLimits, mapper: CartesianMapper | None) -> JobResult:
+def run_job(job: Job, limits: JointLimits, mapper: CartesianMapper | None,
+            collision: CellCollision | None = None) -> JobResult:
     """The job's result: pure, deterministic for the same job, limits and model."""
     if isinstance(job, MapJob):
         return _map(job, mapper)
+    if isinstance(job, ClearanceJob):
+        return _clearance(job, collision)
     return _project(job, limits)
+
+
+def _clearance(job: ClearanceJob, collision: CellCollision | None) -> JobResult:
+    if collision is None:
+        return JobFailed(job_id=job.job_id, detail="no [geometry] for this core")
+    found = collision.check(np.array(job.start), array_of(job.rows, collision.dof), job.phase,
+                            job.held)
+    if found is None:
+        return ClearanceResult(job_id=job.job_id, clear=True)
+    return ClearanceResult(job_id=job.job_id, clear=False, action=found.action,
+                           pair=found.pair, distance=found.distance, bound=found.bound,
+                           needed=found.needed)
 
 
 def _map(job: MapJob, mapper: CartesianMapper | None) -> JobResult:

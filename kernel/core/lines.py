@@ -64,6 +64,18 @@ class SentRef(msgspec.Struct, frozen=True):
     index: int
 
 
+class CollisionLine(msgspec.Struct, frozen=True, kw_only=True):
+    """Where a refused chunk's motion breaks a clearance (COLLISION): the pair of solids, the
+    action the motion goes to, the pair's distance there, the lower bound on its distance
+    over the motion into it, and the clearance it must keep (m)."""
+
+    pair: tuple[str, str]
+    action: int
+    distance: float
+    bound: float
+    needed: float
+
+
 class ChunkLine(msgspec.Struct, frozen=True, kw_only=True, tag_field="kind", tag="chunk",
                 omit_defaults=True):
     t: Ms
@@ -79,6 +91,7 @@ class ChunkLine(msgspec.Struct, frozen=True, kw_only=True, tag_field="kind", tag
     observation_age_ms: Ms | None = None
     divergence: float | None = None
     detail: str | None = None
+    collision: CollisionLine | None = None
 
 
 class TickLine(msgspec.Struct, frozen=True, kw_only=True, tag_field="kind", tag="tick",

@@ -21,6 +21,7 @@ Pure: time is the core's, the period the core's config; nothing here reads a clo
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -30,6 +31,7 @@ from assurance.clock import ns_to_ms
 from assurance.fallback import FallbackCommand, Owner
 from kernel.core.config import CoreConfig
 from kernel.core.effects import Hold, Motion, Retreat, Setpoint, Stop
+from kernel.core.jobs import ClearanceJob, ClearanceResult, rows_of
 from kernel.core.lines import Line, MotionDecision, MotionLine, MotionRequest
 from skills.contact import ContactOwner, ContactState
 from skills.interpolator import InterpolatorConfig, SetpointInterpolator
@@ -62,6 +64,9 @@ class MotionState:
     planner_had_tick: bool = False
     awaiting_rest: bool = False
     rest_target: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    move_check: int | None = None
+    """The clearance job of the planned move, while its answer is awaited (the arm stays at
+    rest until the move is cleared)."""
 
 
 def initial_motion(config: CoreConfig) -> MotionState:
@@ -76,17 +81,21 @@ def initial_motion(config: CoreConfig) -> MotionState:
 
 
 class MotionContext:
-    """What the motion layer reads from the rest of the core for one tick, and where it logs."""
+    """What the motion layer reads from the rest of the core for one tick, and where it logs.
+    ``ask``: asks for a job and returns its id (a planned move's clearance check)."""
 
-    __slots__ = ("arm", "config", "emit", "measured", "t")
+    __slots__ = ("arm", "ask", "config", "emit", "measured", "phase", "t")
 
     def __init__(self, config: CoreConfig, t: int, measured_q: np.ndarray,
-                 emit: Callable[[Line], None]) -> None:
+                 emit: Callable[[Line], None], phase: str = "",
+                 ask: Callable[[ClearanceJob], int] | None = None) -> None:
         self.config = config
         self.t = t
         self.arm = config.limits.arm_mask
         self.measured = measured_q[self.arm]
         self.emit = emit
+        self.phase = phase
+        self.ask = ask
 
 
 def motion_for(m: MotionState, ctx: MotionContext, command: FallbackCommand, owner: Owner,
@@ -152,10 +161,10 @@ def _planned(m: MotionState, ctx: MotionContext, resuming: bool, retreat: bool) 
     """The planner's tick: settle, plan from rest, then play the move one period per tick."""
     interpolator = _interpolator(m)
     wanted = m.move_status is MoveStatus.WAITING or (resuming and m.move is not None)
-    if wanted and not m.awaiting_rest:
+    if wanted and not m.awaiting_rest and (m.move_check is None or resuming):
         m.awaiting_rest = True
         m.rest_target = interpolator.setpoint.position.copy()
-    if m.awaiting_rest and not _plan_from_rest(m, ctx):
+    if (m.awaiting_rest and not _plan_from_rest(m, ctx)) or m.move_check is not None:
         return _planner_effect(m, _interpolated(m, ctx, m.rest_target), retreat)
     if m.move is None:  # nothing to play (none asked, or refused): hold still
         return _planner_effect(m, _interpolated(m, ctx, _commanded_array(m)), retreat)
@@ -193,13 +202,50 @@ def _plan_from_rest(m: MotionState, ctx: MotionContext) -> bool:
                             decision=MotionDecision.REFUSED,
                             move_id=m.move_id, detail=str(error)))
         return True
-    if m.move_status is MoveStatus.WAITING:
-        duration = round(m.move.trajectory.duration * 1000.0, 3)
-        ctx.emit(MotionLine(t=ns_to_ms(ctx.t), request=MotionRequest.MOVE,
-                            decision=MotionDecision.PLANNED,
-                            move_id=m.move_id, duration_ms=duration))
-    m.move_status = MoveStatus.PLAYING
+    m.move_check = None
+    if ctx.config.collision is not None and ctx.ask is not None:
+        m.move_check = ctx.ask(_clearance_job(m, ctx, m.move, setpoint.position))
+        return True
+    _play(m, ctx.t, ctx.emit)
     return True
+
+
+def _play(m: MotionState, t: int, emit: Callable[[Line], None]) -> None:
+    if m.move is not None and m.move_status is MoveStatus.WAITING:
+        duration = round(m.move.trajectory.duration * 1000.0, 3)
+        emit(MotionLine(t=ns_to_ms(t), request=MotionRequest.MOVE,
+                        decision=MotionDecision.PLANNED,
+                        move_id=m.move_id, duration_ms=duration))
+    m.move_status = MoveStatus.PLAYING
+
+
+MOVE_CHECK_STEP_S = 0.02
+"""A planned move is checked at this spacing (and the motion between samples bounded)."""
+
+
+def _clearance_job(m: MotionState, ctx: MotionContext, move: PlannedMove,
+                   start: np.ndarray) -> ClearanceJob:
+    duration = move.trajectory.duration
+    count = max(1, math.ceil(duration / MOVE_CHECK_STEP_S))
+    rows = [move.trajectory.sample(duration * k / count).position for k in range(1, count + 1)]
+    collision = ctx.config.collision
+    held = collision is not None and collision.holds(m.gripper)
+    return ClearanceJob(job_id=0, rows=rows_of(np.array(rows)), start=tuple(start.tolist()),
+                        phase=ctx.phase, held=held)
+
+
+def move_checked(m: MotionState, result: ClearanceResult, t: int,
+                 emit: Callable[[Line], None]) -> None:
+    """The planned move's clearance: it plays, or it is refused naming the pair."""
+    m.move_check = None
+    if result.clear:
+        _play(m, t, emit)
+        return
+    detail = (f"COLLISION: {result.pair[0]} and {result.pair[1]} at {result.distance:.4f} m "
+              f"(at least {result.bound:.4f} m on the way) need {result.needed:.4f} m")
+    m.move, m.move_status, m.move_detail = None, MoveStatus.REFUSED, detail
+    emit(MotionLine(t=ns_to_ms(t), request=MotionRequest.MOVE, decision=MotionDecision.REFUSED,
+                    move_id=m.move_id, detail=detail))
 
 
 def _planner_effect(m: MotionState, q: tuple[float, ...], retreat: bool) -> Motion:

@@ -32,6 +32,9 @@ class Breach(StrEnum):
     """The arm moves while no warden run is heartbeating (none started, or one ended)."""
     DEVICE_LOST = "device_lost"
     """The monitor's own view of the device went stale or stopped answering."""
+    SPACE = "space"
+    """The measured arm is inside a keep-out zone, or closer to an obstacle than any phase's
+    clearance (``[geometry]``; kernel/safety/space.py)."""
 
 
 @dataclass(frozen=True, slots=True)

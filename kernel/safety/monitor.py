@@ -1,7 +1,8 @@
 """The monitor's loop: every check period, read the heartbeat and the device, judge, and stop.
 
 One check: take every heartbeat datagram waiting; read the device through the monitor's own
-connection; compare joints, speeds and the wrist force with the limits (kernel/safety/checks.py);
+connection; compare joints, speeds and the wrist force with the limits (kernel/safety/checks.py)
+and, with a ``[geometry]`` table, the arm's place against its solids (kernel/safety/space.py);
 add a lost heartbeat, motion while no warden run heartbeats, and a device that stopped
 answering. A breach that was not there at the previous check stops the arm at once, through the
 watch's own stop path, and is logged with what was seen. A breach that persists while the arm
@@ -22,7 +23,7 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import structlog
 
@@ -31,12 +32,15 @@ from kernel.safety.heartbeat import HeartbeatReceiver, Pulse
 from kernel.safety.settings import SafetySettings
 from kernel.safety.watch import DeviceLost, DeviceWatch, StopResult
 
+if TYPE_CHECKING:
+    from kernel.safety.space import SpaceCheck
+
 log = structlog.get_logger("warden.safety")
 PROBE_EVERY_NS = 1_000_000_000
 RECONNECT_EVERY_NS = 1_000_000_000
 WATCHING_SLACK_NS = 50_000_000
 """A loop whose last check is older than three periods plus this is not watching."""
-LIMIT_BREACHES = frozenset({Breach.POSITION, Breach.VELOCITY, Breach.FORCE})
+LIMIT_BREACHES = frozenset({Breach.POSITION, Breach.VELOCITY, Breach.FORCE, Breach.SPACE})
 
 
 @dataclass(frozen=True, slots=True)
@@ -51,8 +55,12 @@ class StopRecord:
 class Monitor:
     def __init__(self, settings: SafetySettings, limits: Limits, watch: DeviceWatch,
                  heartbeat: HeartbeatReceiver,
-                 clock: Callable[[], int] = time.monotonic_ns) -> None:
+                 clock: Callable[[], int] = time.monotonic_ns,
+                 space: SpaceCheck | None = None) -> None:
         self.settings, self.limits, self.watch, self.heartbeat = settings, limits, watch, heartbeat
+        self.space = space
+        """The measured arm against ``[geometry]``'s solids, on every sample; None: the
+        manifest has no solid the monitor checks."""
         self.clock = clock
         self.lock = threading.Lock()
         """Held while a check updates what :meth:`status` reads."""
@@ -101,6 +109,8 @@ class Monitor:
         findings = [lost] if lost else []
         if sample is not None:
             findings += breaches(sample, self.limits)
+            if self.space is not None:
+                findings += self.space.findings(sample.q)
         findings += self._heartbeat_findings(sample, now)
         with self.lock:
             previous = {f.breach for f in self._findings}
@@ -254,6 +264,7 @@ class Monitor:
             "stops": count, "last_stop": _stop_summary(stop, now),
             "fastest_rad_s": _rounded(sample.fastest if sample else None),
             "force_n": _rounded(sample.force_n if sample else None),
+            "space": None if self.space is None else list(self.space.solids),
         }
 
 

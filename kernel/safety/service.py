@@ -17,6 +17,7 @@ import threading
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import structlog
 
@@ -31,6 +32,9 @@ from kernel.safety.watch import DeviceUnreachable, DeviceWatch
 from kernel.shell.device_lock import DeviceBusy, Holder, holding
 from kernel.shell.realtime import log_report, restore, try_realtime
 from kernel.shell.systemd import ServiceNotifier
+
+if TYPE_CHECKING:
+    from kernel.safety.space import SpaceCheck
 
 log = structlog.get_logger("warden.safety")
 PRIORITY = 60
@@ -49,6 +53,7 @@ class Plan:
     settings: SafetySettings
     limits: Limits
     gid: int
+    space: SpaceCheck | None = None
 
 
 def plan(path: str) -> Plan:
@@ -75,7 +80,30 @@ def plan(path: str) -> Plan:
     except KeyError:
         raise StartError(f"{manifest.path}: safety.group: no group {group!r} on this "
                          "host") from None
-    return Plan(manifest, settings, Limits.of(manifest.limits, settings), gid)
+    limits = Limits.of(manifest.limits, settings)
+    return Plan(manifest, settings, limits, gid, _space(manifest, len(limits.lower)))
+
+
+def _space(manifest: MonitorView, dof: int) -> SpaceCheck | None:
+    """The space check of ``[geometry]``, or None when it names no solid the monitor checks.
+
+    Raises:
+        StartError: solids to check and no arm model to check them against, or a model
+            MuJoCo cannot load.
+    """
+    geometry = manifest.geometry
+    if geometry is None or not (geometry.obstacles or geometry.keep_out):
+        return None
+    # MuJoCo is loaded only here: a monitor of a cell without solids never imports it.
+    from kernel.safety.space import SpaceCheck, SpaceModelError
+    if manifest.arm_model is None:
+        raise StartError(f"{manifest.path}: robot.kinematics: the monitor checks the arm "
+                         "against [geometry] and needs the arm's model ('kinematics' or "
+                         "'model')")
+    try:
+        return SpaceCheck(manifest.arm_model, dof, geometry)
+    except SpaceModelError as error:
+        raise StartError(f"{manifest.path}: robot.model: {error}") from None
 
 
 def serve(path: str) -> None:
@@ -99,7 +127,7 @@ def serve(path: str) -> None:
         stack.callback(heartbeat.close)
         watch = _connected(chosen)
         stack.callback(watch.close)
-        monitor = Monitor(settings, chosen.limits, watch, heartbeat)
+        monitor = Monitor(settings, chosen.limits, watch, heartbeat, space=chosen.space)
         manifest = chosen.manifest
         watched = {"name": manifest.name, "path": str(manifest.path.resolve()),
                    "digest": manifest.digest}  # a trial checks this is its own manifest
@@ -123,7 +151,8 @@ def _watch(chosen: Plan, monitor: Monitor, status: StatusServer) -> None:
             log.info("safety monitor watching", manifest=str(chosen.manifest.path),
                      device=watch.description, stop_path=watch.stop_path,
                      heartbeat=str(settings.heartbeat_path), status=str(settings.status_path),
-                     timeout_ms=settings.heartbeat_timeout_ms, scheduling=realtime.in_effect())
+                     timeout_ms=settings.heartbeat_timeout_ms, scheduling=realtime.in_effect(),
+                     space=list(chosen.space.solids) if chosen.space else None)
             service.ready(f"watching {watch.description}")
             monitor.run(stopping, service.alive)
     finally:

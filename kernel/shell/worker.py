@@ -54,7 +54,8 @@ class InlineJobs:
 
     def _run(self, effect: Compute) -> None:
         config = self.gateway.core.config
-        result = run_job(effect.job, config.limits, config.cartesian)
+        result = run_job(effect.job, config.limits, config.cartesian,
+                         config.collision)
         self.done += 1
         self.gateway.feed(ComputedEvent(t=self.gateway.now_ns(), result=result))
 
@@ -225,7 +226,8 @@ def main() -> int:
     while (frame := _read_frame(stdin)) is not None:
         job = decoder.decode(frame)
         try:
-            result: JobResult = run_job(job, config.limits, config.cartesian)
+            result: JobResult = run_job(job, config.limits, config.cartesian,
+                                        config.collision)
         except ValueError as error:
             result = JobFailed(job_id=job.job_id, detail=str(error))
         body = encoder.encode(result)

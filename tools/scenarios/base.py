@@ -143,6 +143,8 @@ class ScenarioSpec:
     phases: dict[str, Any] | None = None
     session: dict[str, Any] | None = None
     robot: dict[str, Any] | None = None
+    geometry: dict[str, Any] | None = None
+    """The cell's ``geometry`` section, for the scenarios that check clearances."""
 
     def document(self) -> dict[str, Any]:
         timing = {"control_period_ms": 2, "clock_uncertainty_ms": 1, **self.timing}
@@ -158,6 +160,7 @@ class ScenarioSpec:
             "allowlist": [{"policy_checkpoint": IDENTITY["policy_checkpoint"],
                            "config_hash": IDENTITY["config_hash"]},
                           {"policy_checkpoint": "act-insert-2026-06", "config_hash": "cfg-77a1"}],
+            **({"geometry": self.geometry} if self.geometry is not None else {}),
             "events": sorted(copy.deepcopy(self.events), key=lambda e: e["t"]),
             "until": self.until,
             "expect": self.expect,

@@ -5,6 +5,7 @@ from __future__ import annotations
 from tools.scenarios import (
     catalog_authority,
     catalog_cartesian,
+    catalog_collision,
     catalog_context,
     catalog_identity,
     catalog_network,
@@ -17,7 +18,7 @@ from tools.scenarios.base import dumps
 
 MODULES = (
     catalog_seed, catalog_identity, catalog_context, catalog_time, catalog_queue,
-    catalog_authority, catalog_network, catalog_recovery, catalog_cartesian,
+    catalog_authority, catalog_network, catalog_recovery, catalog_cartesian, catalog_collision,
 )
 
 

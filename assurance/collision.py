@@ -1,0 +1,333 @@
+"""Where the arm could go: clearance of every queued action, and of the motion between them.
+
+The cell's solids are a Pinocchio ``GeometryModel`` (coal shapes): the arm's own collision
+geoms (the model's primitive geoms, which the kernel loads with the kinematics), the world's
+obstacles and keep-out zones, and the held part, fixed to the TCP while the gripper holds it.
+Which pairs are checked:
+
+- **self**: two robot geoms whose joints are not adjacent (two or more joints apart), when
+  ``self_collision``; they keep the default clearance (``margin``) in every phase;
+- **obstacle**: a robot geom (link, tool or part) against an obstacle, at the phase's
+  clearance; the tool and the part are not checked against an obstacle in the phases it
+  allows contact in (the fixture in CONTACT); the links always are;
+- **keep-out**: any robot geom against a keep-out zone, at the phase's clearance, always.
+
+A geom fixed to the base (the base itself) is not checked against the world: no motion
+changes that distance.
+
+Between two consecutive configurations ``a`` and ``b`` (the reference the chunk follows, then
+each action) no point of a robot geom ``g`` travels farther than
+``s_g = Σ_j |Δq_j|·R[g, j]``, where ``R[g, j]`` bounds the distance of any point of ``g`` from
+joint ``j``'s origin (the chain's link lengths from ``j`` to ``g``'s joint, plus ``g``'s
+offset and its bounding radius: a constant of the model, computed once). On the straight
+joint-space segment from ``a`` to ``b`` a pair's distance is therefore at least
+``(d(a) + d(b) − s) / 2`` with ``s`` the sum of both geoms' travel: the check asks that bound,
+and ``d(b)`` itself, to keep the pair's clearance. It is conservative (it never passes a
+segment that comes closer than the clearance), and it tightens as the steps get shorter.
+
+Pure: no I/O, no clock. One :class:`CellCollision` owns Pinocchio data buffers: one instance
+per thread.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from enum import StrEnum
+
+import numpy as np
+import pinocchio as pin
+
+from assurance.kinematics import ArmKinematics
+from assurance.solids import (
+    Shape,
+    SolidSpec,
+    arm_geometry,
+    bounding_radius,
+    coal_shape,
+    joint_axis,
+    joint_reach,
+    placement,
+)
+
+
+@dataclass(frozen=True, slots=True)
+class CollisionSettings:
+    margin: float = 0.01
+    phase_margins: dict[str, float] = field(default_factory=dict)
+    self_collision: bool = True
+    part: SolidSpec | None = None
+    """The held part, placed in the TCP frame."""
+    solids: tuple[SolidSpec, ...] = ()
+
+    def margin_in(self, phase: str) -> float:
+        return self.phase_margins.get(phase, self.margin)
+
+
+class PairKind(StrEnum):
+    SELF = "self"
+    OBSTACLE = "obstacle"
+    KEEP_OUT = "keep_out"
+
+
+@dataclass(frozen=True, slots=True)
+class Clearance:
+    """The first place a motion breaks a pair's clearance."""
+
+    action: int
+    """Index of the action the motion goes to (0: the first, from the reference)."""
+    pair: tuple[str, str]
+    distance: float
+    """The pair's distance at that action, m (negative: penetration)."""
+    bound: float
+    """The lower bound on the pair's distance over the motion into that action, m."""
+    needed: float
+    """The clearance the pair must keep, m."""
+
+
+class _Robot(StrEnum):
+    LINK = "link"
+    TOOL = "tool"
+    PART = "part"
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class _Pairs:
+    """The pairs checked in one phase, with or without the part: their own geometry model
+    (holding only those pairs), its data, their clearances and their geoms."""
+
+    model: pin.GeometryModel
+    data: pin.GeometryData
+    margin: np.ndarray
+    mover: np.ndarray
+    """Per pair, the geom whose motion changes the pair's distance (the robot's, against a
+    world solid; of two robot geoms, the one further along the chain)."""
+    mask: np.ndarray
+    """(pairs, dof): 1 for the joints that move the mover relative to the other solid (of two
+    robot geoms, only the joints between them)."""
+    names: tuple[tuple[str, str], ...]
+
+
+class CellCollision:
+    """The clearance checks of one cell (see the module docstring)."""
+
+    def __init__(self, kinematics: ArmKinematics, settings: CollisionSettings) -> None:
+        """Raises:
+            ValueError: the robot model has no collision geoms."""
+        arm = arm_geometry(kinematics)
+        self.kinematics = kinematics
+        self.settings = settings
+        self.model = kinematics.model
+        self._data = self.model.createData()
+        self._tcp = self.model.getFrameId(kinematics.config.tcp_frame)
+        self._held = _with_part(self.model, arm, settings, self._tcp, held=True)
+        self._free = _with_part(self.model, arm, settings, self._tcp, held=False)
+        self._cache: dict[tuple[str, bool], _Pairs] = {}
+
+    @property
+    def dof(self) -> int:
+        return int(self.model.nq)
+
+    def holds(self, opening: float | None) -> bool:
+        """Whether a gripper commanded to ``opening`` (m) holds the part: narrower than the
+        part across the pads (its x extent in the TCP frame; a round part's diameter)."""
+        part = self.settings.part
+        if part is None or opening is None:
+            return False
+        return opening < 2.0 * part.size[0]
+
+    def distances(self, q: np.ndarray, phase: str, held: bool) -> dict[tuple[str, str], float]:
+        """Every checked pair's distance at ``q`` (m; negative: penetration)."""
+        pairs = self._pairs(phase, held)
+        row = self._distance_row(np.asarray(q, dtype=float), pairs)
+        return dict(zip(pairs.names, row.tolist(), strict=True))
+
+    def check(self, start: np.ndarray, rows: np.ndarray, phase: str,
+              held: bool) -> Clearance | None:
+        """The first action whose motion from the one before (the first: from ``start``)
+        breaks a pair's clearance, or None when every motion keeps them all."""
+        pairs = self._pairs(phase, held)
+        if rows.shape[0] == 0 or not pairs.names:
+            return None
+        qs = np.vstack((np.asarray(start, dtype=float)[None, :], np.asarray(rows, dtype=float)))
+        geometry = self._held if held else self._free
+        dist = np.empty((qs.shape[0], len(pairs.names)))
+        radius = np.empty((rows.shape[0], *geometry.radii.shape))
+        for i, q in enumerate(qs):
+            dist[i] = self._distance_row(q, pairs)
+            if i < rows.shape[0]:
+                radius[i] = self._radius_about_joints(geometry, pairs.data)
+        swept = _travel(np.abs(np.diff(qs, axis=0)), radius, geometry.radii, pairs)
+        bound = np.minimum(dist[1:], 0.5 * (dist[:-1] + dist[1:] - swept))
+        short = bound < pairs.margin
+        if not short.any():
+            return None
+        action, pair = np.argwhere(short)[0].tolist()
+        return Clearance(action=action, pair=pairs.names[pair],
+                         distance=float(dist[action + 1, pair]),
+                         bound=float(bound[action, pair]), needed=float(pairs.margin[pair]))
+
+    def _radius_about_joints(self, geometry: _Geometry, data: pin.GeometryData) -> np.ndarray:
+        """(geoms, dof) at the configuration just computed: how far each geom reaches from
+        each joint's axis (its centre's distance plus its bounding radius; 1 per metre for a
+        prismatic joint), where the joint moves it."""
+        centres = np.array([placement.translation for placement in data.oMg])
+        placements = [self._data.oMi[joint] for joint in geometry.joint_of_q.tolist()]
+        origins = np.array([placement.translation for placement in placements])
+        axes = np.array([placement.rotation @ axis for placement, axis in
+                         zip(placements, geometry.axis_array, strict=True)])
+        arm = centres[:, None, :] - origins[None, :, :]  # (geoms, dof, 3)
+        ax, ay, az = axes[:, 0], axes[:, 1], axes[:, 2]
+        cx = ay * arm[..., 2] - az * arm[..., 1]
+        cy = az * arm[..., 0] - ax * arm[..., 2]
+        cz = ax * arm[..., 1] - ay * arm[..., 0]
+        radius = np.sqrt(cx * cx + cy * cy + cz * cz)
+        radius[:, geometry.prismatic] = 1.0
+        return np.where(geometry.radii > 0.0, radius + geometry.rho[:, None], 0.0)
+
+    def _distance_row(self, q: np.ndarray, pairs: _Pairs) -> np.ndarray:
+        pin.computeDistances(self.model, self._data, pairs.model, pairs.data, q)
+        return np.array([result.min_distance for result in pairs.data.distanceResults])
+
+    def _pairs(self, phase: str, held: bool) -> _Pairs:
+        key = (str(phase), held)
+        if key not in self._cache:
+            self._cache[key] = _select(self._held if held else self._free, self.settings,
+                                       str(phase))
+        return self._cache[key]
+
+
+def _travel(step: np.ndarray, radius: np.ndarray, bound: np.ndarray,
+            pairs: _Pairs) -> np.ndarray:
+    """(actions, pairs): how far each pair's moving solid can travel relative to the other
+    over each motion. ``step``: |Δq| per action (actions, dof); ``radius``: each geom's reach
+    about each joint's axis at the motion's start (actions, geoms, dof); ``bound``: the
+    configuration-independent reach from each joint's origin (geoms, dof). While joint j
+    turns, the joints after it move the geom by at most Σ_{k>j} |Δq_k|·bound[g, k], so its
+    reach about j's axis grows by no more than that during the motion."""
+    later = step[:, None, :] * bound[None, :, :]
+    after = np.cumsum(later[:, :, ::-1], axis=2)[:, :, ::-1] - later  # Σ over k > j
+    reach = np.where(bound[None] > 0.0, radius + after, 0.0)
+    moving = reach[:, pairs.mover, :] * pairs.mask[None, :, :]  # (actions, pairs, dof)
+    return np.einsum("aj,apj->ap", step, moving)
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class _Geometry:
+    model: pin.GeometryModel
+    roles: tuple[_Robot | SolidSpec, ...]
+    """Per geom: what it is on the robot, or the world's solid it is."""
+    joints: tuple[int, ...]
+    radii: np.ndarray
+    """(geoms, dof): how far a point of geom g can be from joint j's origin (0: not moved by j)."""
+    joint_of_q: np.ndarray
+    """Per configuration coordinate, the joint it belongs to."""
+    axes: tuple[np.ndarray | None, ...]
+    """Per configuration coordinate, its joint's axis in the joint's frame (None: prismatic)."""
+    rho: np.ndarray
+    """Per geom, its bounding radius about its placement's origin."""
+    axis_array: np.ndarray
+    """(dof, 3): the axes, a prismatic joint's as zeros."""
+    prismatic: np.ndarray
+    """Per configuration coordinate, whether its joint is prismatic."""
+
+
+def _with_part(model: pin.Model, arm: pin.GeometryModel, settings: CollisionSettings,
+               tcp: int, held: bool) -> _Geometry:
+    geometry = arm.copy()
+    roles: list[_Robot | SolidSpec] = [_role(model, g, tcp) for g in arm.geometryObjects]
+    if held and settings.part is not None:
+        frame = model.frames[tcp]
+        geometry.addGeometryObject(pin.GeometryObject(
+            "part", frame.parentJoint, tcp, frame.placement * placement(settings.part),
+            coal_shape(settings.part)))
+        roles.append(_Robot.PART)
+    for solid in settings.solids:
+        geometry.addGeometryObject(pin.GeometryObject(
+            solid.name, 0, 0, placement(solid), coal_shape(solid)))
+        roles.append(solid)
+    joints = tuple(int(g.parentJoint) for g in geometry.geometryObjects)
+    joint_of_q = np.zeros(model.nq, dtype=int)
+    for joint in range(1, model.njoints):
+        joint_of_q[model.joints[joint].idx_q] = joint
+    axes = tuple(joint_axis(model.joints[joint]) for joint in joint_of_q.tolist())
+    rho = np.array([bounding_radius(g.geometry) for g in geometry.geometryObjects])
+    prismatic = np.array([axis is None for axis in axes])
+    axis_array = np.array([np.zeros(3) if axis is None else axis for axis in axes])
+    return _Geometry(geometry, tuple(roles), joints, joint_reach(model, geometry), joint_of_q, axes,
+                     rho, axis_array, prismatic)
+
+
+def _role(model: pin.Model, geom: pin.GeometryObject, tcp_frame: int) -> _Robot:
+    """A geom on the TCP's joint that hangs off another body than that joint's own link (the
+    gripper and its fingers) is the tool; every other robot geom is a link."""
+    joint = model.frames[tcp_frame].parentJoint
+    if geom.parentJoint != joint:
+        return _Robot.LINK
+    link = next(i for i, f in enumerate(model.frames)
+                if f.parentJoint == joint and f.type == pin.FrameType.BODY)
+    return _Robot.LINK if geom.parentFrame == link else _Robot.TOOL
+
+
+def _pair_kind(a: _Robot | SolidSpec, b: _Robot | SolidSpec, joint_a: int, joint_b: int,
+               settings: CollisionSettings) -> PairKind | None:
+    robot_a, robot_b = isinstance(a, _Robot), isinstance(b, _Robot)
+    if robot_a and robot_b:
+        if not settings.self_collision or abs(joint_a - joint_b) < 2:
+            return None
+        return PairKind.SELF
+    if not (robot_a or robot_b):
+        return None  # two world solids: neither moves
+    robot_joint = joint_a if robot_a else joint_b
+    solid = b if robot_a else a
+    if robot_joint == 0 or not isinstance(solid, SolidSpec):
+        return None  # fixed to the base: no motion changes the distance
+    return PairKind.KEEP_OUT if solid.keep_out else PairKind.OBSTACLE
+
+
+def _select(geometry: _Geometry, settings: CollisionSettings, phase: str) -> _Pairs:
+    model = geometry.model.copy()
+    model.removeAllCollisionPairs()
+    roles, joints, objects = geometry.roles, geometry.joints, model.geometryObjects
+    margin, names, movers, masks = [], [], [], []
+    for a in range(len(roles)):
+        for b in range(a + 1, len(roles)):
+            kind = _pair_kind(roles[a], roles[b], joints[a], joints[b], settings)
+            if kind is None or _contact_allowed(kind, roles[a], roles[b], phase):
+                continue
+            model.addCollisionPair(pin.CollisionPair(a, b))
+            margin.append(settings.margin if kind is PairKind.SELF else
+                          settings.margin_in(phase))
+            names.append((objects[a].name, objects[b].name))
+            mover, mask = _mover(geometry, a, b)
+            movers.append(mover)
+            masks.append(mask)
+    dof = geometry.radii.shape[1]
+    return _Pairs(model, pin.GeometryData(model), np.array(margin),
+                  np.array(movers, dtype=int), np.array(masks).reshape(len(names), dof),
+                  tuple(names))
+
+
+def _mover(geometry: _Geometry, a: int, b: int) -> tuple[int, np.ndarray]:
+    """The geom of pair (a, b) that moves relative to the other, and the joints that move it
+    so."""
+    joints, every = geometry.joints, np.ones(geometry.radii.shape[1])
+    if isinstance(geometry.roles[a], SolidSpec):
+        return b, every
+    if isinstance(geometry.roles[b], SolidSpec):
+        return a, every
+    low, high = (a, b) if joints[a] <= joints[b] else (b, a)
+    # The joints up to the lower geom's move both rigidly: only those after it count.
+    return high, (geometry.joint_of_q > joints[low]).astype(float)
+
+
+def _contact_allowed(kind: PairKind, a: _Robot | SolidSpec, b: _Robot | SolidSpec,
+                     phase: str) -> bool:
+    """The tool and the part may touch an obstacle in the phases it names."""
+    if kind is not PairKind.OBSTACLE:
+        return False
+    robot, solid = (a, b) if isinstance(b, SolidSpec) else (b, a)
+    return (robot in (_Robot.TOOL, _Robot.PART) and isinstance(solid, SolidSpec)
+            and phase in solid.allow_contact)
+
+
+__all__ = ["CellCollision", "Clearance", "CollisionSettings", "PairKind", "Shape", "SolidSpec"]
