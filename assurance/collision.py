@@ -141,48 +141,73 @@ class CellCollision:
         row = self._distance_row(np.asarray(q, dtype=float), pairs)
         return dict(zip(pairs.names, row.tolist(), strict=True))
 
+    def clear_by_travel(self, start: np.ndarray, rows: np.ndarray, phase: str,
+                        held: bool) -> bool:
+        """Whether the whole motion, from ``start`` through every row, provably keeps every
+        pair's clearance on one distance query (:meth:`_near`): sound like :meth:`check` and
+        much cheaper; False only means this bound cannot tell (the motion passes near
+        something), never that it collides."""
+        pairs = self._pairs(phase, held)
+        if rows.shape[0] == 0 or not pairs.names:
+            return True
+        return not self._near(_path(start, rows), pairs, held).any()
+
     def check(self, start: np.ndarray, rows: np.ndarray, phase: str,
               held: bool) -> Clearance | None:
         """The first action whose motion from the one before (the first: from ``start``)
-        breaks a pair's clearance, or None when every motion keeps them all."""
+        breaks a pair's clearance, or None when every motion keeps them all.
+
+        The pairs :meth:`_near`'s bound proves clear over the whole motion are not looked at
+        again; each other pair is measured at every action and bounded over each motion."""
         pairs = self._pairs(phase, held)
         if rows.shape[0] == 0 or not pairs.names:
             return None
-        qs = np.vstack((np.asarray(start, dtype=float)[None, :], np.asarray(rows, dtype=float)))
+        qs = _path(start, rows)
+        near = np.flatnonzero(self._near(qs, pairs, held))
+        if near.size == 0:
+            return None
         geometry = self._held if held else self._free
-        dist = np.empty((qs.shape[0], len(pairs.names)))
-        radius = np.empty((rows.shape[0], *geometry.radii.shape))
+        movers = np.unique(pairs.mover[near])
+        dist = np.empty((qs.shape[0], near.size))
+        joints = np.empty((rows.shape[0], self.dof, 4, 4))
         for i, q in enumerate(qs):
-            dist[i] = self._distance_row(q, pairs)
+            pin.updateGeometryPlacements(self.model, self._data, pairs.model, pairs.data, q)
+            dist[i] = [pin.computeDistance(pairs.model, pairs.data, p).min_distance
+                       for p in near.tolist()]
             if i < rows.shape[0]:
-                radius[i] = self._radius_about_joints(geometry, pairs.data)
-        swept = _travel(np.abs(np.diff(qs, axis=0)), radius, geometry.radii, pairs)
+                joints[i] = self._joint_placements(geometry)
+        radius = np.zeros((rows.shape[0], *geometry.radii.shape))
+        radius[:, movers] = _reach_about_axes(geometry, movers, joints)
+        swept = _travel(np.abs(np.diff(qs, axis=0)), radius, geometry.radii, pairs)[:, near]
         bound = np.minimum(dist[1:], 0.5 * (dist[:-1] + dist[1:] - swept))
-        short = bound < pairs.margin
+        short = bound < pairs.margin[near]
         if not short.any():
             return None
-        action, pair = np.argwhere(short)[0].tolist()
+        action, column = np.argwhere(short)[0].tolist()
+        pair = int(near[column])
         return Clearance(action=action, pair=pairs.names[pair],
-                         distance=float(dist[action + 1, pair]),
-                         bound=float(bound[action, pair]), needed=float(pairs.margin[pair]))
+                         distance=float(dist[action + 1, column]),
+                         bound=float(bound[action, column]), needed=float(pairs.margin[pair]))
 
-    def _radius_about_joints(self, geometry: _Geometry, data: pin.GeometryData) -> np.ndarray:
-        """(geoms, dof) at the configuration just computed: how far each geom reaches from
-        each joint's axis (its centre's distance plus its bounding radius; 1 per metre for a
-        prismatic joint), where the joint moves it."""
-        centres = np.array([placement.translation for placement in data.oMg])
-        placements = [self._data.oMi[joint] for joint in geometry.joint_of_q.tolist()]
-        origins = np.array([placement.translation for placement in placements])
-        axes = np.array([placement.rotation @ axis for placement, axis in
-                         zip(placements, geometry.axis_array, strict=True)])
-        arm = centres[:, None, :] - origins[None, :, :]  # (geoms, dof, 3)
-        ax, ay, az = axes[:, 0], axes[:, 1], axes[:, 2]
-        cx = ay * arm[..., 2] - az * arm[..., 1]
-        cy = az * arm[..., 0] - ax * arm[..., 2]
-        cz = ax * arm[..., 1] - ay * arm[..., 0]
-        radius = np.sqrt(cx * cx + cy * cy + cz * cz)
-        radius[:, geometry.prismatic] = 1.0
-        return np.where(geometry.radii > 0.0, radius + geometry.rho[:, None], 0.0)
+    def _near(self, qs: np.ndarray, pairs: _Pairs, held: bool) -> np.ndarray:
+        """Per pair, whether it may come within its clearance along the path ``qs``, by one
+        distance query at its start: its distance there less the farthest its moving solid
+        can travel over the whole path must be at least its clearance, or it is near. The
+        travel is :func:`_travel`'s bound for one motion whose joint steps are each joint's
+        whole travel (the sum of its |Δq| over the path): the argument for one straight
+        motion holds for any path, as it uses only how far each joint turns."""
+        geometry = self._held if held else self._free
+        distance = self._distance_row(qs[0], pairs)
+        path = np.abs(np.diff(qs, axis=0)).sum(axis=0)[None, :]  # (1, dof)
+        every = np.arange(len(geometry.roles))
+        radius = _reach_about_axes(geometry, every, self._joint_placements(geometry)[None])
+        travel = _travel(path, radius, geometry.radii, pairs)[0]
+        return distance - travel < pairs.margin
+
+    def _joint_placements(self, geometry: _Geometry) -> np.ndarray:
+        """(dof, 4, 4): each joint's placement at the configuration just computed."""
+        placed = self._data.oMi  # each attribute read builds a proxy: once
+        return np.array([placed[joint].homogeneous for joint in geometry.joint_list])
 
     def _distance_row(self, q: np.ndarray, pairs: _Pairs) -> np.ndarray:
         pin.computeDistances(self.model, self._data, pairs.model, pairs.data, q)
@@ -194,6 +219,29 @@ class CellCollision:
             self._cache[key] = _select(self._held if held else self._free, self.settings,
                                        str(phase))
         return self._cache[key]
+
+
+def _reach_about_axes(geometry: _Geometry, geoms: np.ndarray, joints: np.ndarray) -> np.ndarray:
+    """(configurations, len(geoms), dof): how far each of ``geoms`` reaches from each joint's
+    axis (its centre's distance from the axis plus its bounding radius; 1 per metre for a
+    prismatic joint), where the joint moves it (else 0). ``joints``: (configurations, dof, 4,
+    4), each joint's placement in the world."""
+    rotations, origins = joints[:, :, :3, :3], joints[:, :, :3, 3]
+    axes = np.einsum("rjab,jb->rja", rotations, geometry.axis_array)
+    column = geometry.parent_column[geoms]
+    carried = np.einsum("rgab,gb->rga", rotations[:, column], geometry.local_centres[geoms])
+    centres = np.where((column >= 0)[None, :, None], carried + origins[:, column],
+                       geometry.local_centres[geoms][None])
+    arm = centres[:, :, None, :] - origins[:, None, :, :]  # (r, geoms, dof, 3)
+    radius = np.linalg.norm(np.cross(axes[:, None, :, :], arm), axis=-1)
+    radius[..., geometry.prismatic] = 1.0
+    radii = geometry.radii[geoms]
+    return np.where(radii[None] > 0.0, radius + geometry.rho[geoms, None][None], 0.0)
+
+
+def _path(start: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """The configurations of a motion: ``start``, then each row."""
+    return np.vstack((np.asarray(start, dtype=float)[None, :], np.asarray(rows, dtype=float)))
 
 
 def _travel(step: np.ndarray, radius: np.ndarray, bound: np.ndarray,
@@ -229,6 +277,12 @@ class _Geometry:
     """(dof, 3): the axes, a prismatic joint's as zeros."""
     prismatic: np.ndarray
     """Per configuration coordinate, whether its joint is prismatic."""
+    joint_list: tuple[int, ...]
+    """Per configuration coordinate, its joint (``joint_of_q`` as ints)."""
+    parent_column: np.ndarray
+    """Per geom, the configuration coordinate of the joint it is fixed to (-1: the base)."""
+    local_centres: np.ndarray
+    """(geoms, 3): each geom's centre in its joint's frame (the world's, on the base)."""
 
 
 def _with_part(model: pin.Model, arm: pin.GeometryModel, settings: CollisionSettings,
@@ -253,8 +307,12 @@ def _with_part(model: pin.Model, arm: pin.GeometryModel, settings: CollisionSett
     rho = np.array([bounding_radius(g.geometry) for g in geometry.geometryObjects])
     prismatic = np.array([axis is None for axis in axes])
     axis_array = np.array([np.zeros(3) if axis is None else axis for axis in axes])
+    column = {joint: q for q, joint in reversed(list(enumerate(joint_of_q.tolist())))}
+    parent_column = np.array([column.get(joint, -1) for joint in joints])
+    local_centres = np.array([g.placement.translation for g in geometry.geometryObjects])
     return _Geometry(geometry, tuple(roles), joints, joint_reach(model, geometry), joint_of_q, axes,
-                     rho, axis_array, prismatic)
+                     rho, axis_array, prismatic, tuple(joint_of_q.tolist()), parent_column,
+                     local_centres)
 
 
 def _role(model: pin.Model, geom: pin.GeometryObject, tcp_frame: int) -> _Robot:

@@ -133,6 +133,7 @@ def request_move(m: MotionState, move_id: int, target: np.ndarray) -> None:
     m.move, m.move_id, m.move_target = None, move_id, target
     m.move_status, m.move_detail = MoveStatus.WAITING, ""
     m.awaiting_rest = False
+    m.move_check = None  # an earlier move's check answers for that move only: it is dropped
 
 
 # -- laws --------------------------------------------------------------------------------------
