@@ -24,7 +24,7 @@ from skills.contact import ContactState
 from skills.evaluator import Evaluator, InsertionEvidence, InsertionVerdict
 from skills.layout import CellLayout
 from skills.phases import TaskPhase
-from skills.planner import MoveStatus, Planner
+from skills.planner import MoveStatus, Planner, PlanningError
 
 P = TaskPhase
 
@@ -270,10 +270,18 @@ class AssemblyRunner:
         return self._request(P.RETREAT, s, mode)
 
     def _release(self, s: Sensed, phase: TaskPhase, mode: Mode) -> None:
-        if self._elapsed(s) >= self.timing.release_s:
-            tcp = self.planner.kin.forward(s.q).position
-            lift = np.array([tcp[0], tcp[1], self.layout.staging_tcp[2]])
+        if self._elapsed(s) < self.timing.release_s:
+            return
+        tcp = self.planner.kin.forward(s.q).position
+        lift = np.array([tcp[0], tcp[1], self.layout.staging_tcp[2]])
+        try:
             self._plan(AssemblyStep.RETREAT_LIFT, s, lift)
+        except PlanningError as error:
+            # Wherever a failed approach left the arm (a policy may leave it anywhere), the
+            # tool-down lift may have no IK solution: go home in joint space (the core checks
+            # that move's clearance like any other) and keep the reason.
+            self._failure = self._failure or f"no retreat lift: {error}"
+            self._move_to(AssemblyStep.RETREAT_HOME, s, self.layout.home_q)
 
     def _after_retreat_lift(self, s: Sensed, phase: TaskPhase, mode: Mode) -> None:
         self._move_to(AssemblyStep.RETREAT_HOME, s, self.layout.home_q)

@@ -15,7 +15,8 @@ the pre-contact phase starts (the staging pose above the fixture) towards
 
 The elbow and the wrist presses move at 0.7 rad/s (the reference server's 0.3 would not reach
 a goal 2-3.4 rad away before the approach's 8 s timeout; faster chunks are refused by the
-projection gate).
+projection gate), with the pre-contact divergence and projection gates scaled to that pace
+(:func:`pressing_manifest`).
 
 warden runs the cell with ``[policy] launch = false`` against that server, one cycle.
 :func:`judge` reads the run's journal: every joint setpoint warden commanded, put through
@@ -100,20 +101,46 @@ def press_goal(press: Press, manifest_path: Path) -> np.ndarray:
     return press.goal(context, np.asarray(staging))
 
 
-def pressing_manifest(base: Path, port: int, directory: Path) -> Path:
+REFERENCE_SPEED = 0.3
+"""rad/s: the reference server's pace, the one the cells' pre-contact gates are set for."""
+PACED_GATES = ("max_divergence", "max_projection")
+"""The pre-contact gates that measure how far the arm moved while a chunk was on its way."""
+
+
+def pressing_manifest(base: Path, port: int, directory: Path,
+                      max_speed: float | None = None) -> Path:
     """``base`` for one cycle against a policy server on ``port``, with its own operator
-    socket (the default one may be another warden's)."""
+    socket (the default one may be another warden's).
+
+    A press faster than the reference server's pace gets the pre-contact divergence and
+    projection gates scaled by its speed over that pace: what those gates measure is the
+    arm's motion during a chunk's round trip, so at 0.7 rad/s the cell's own 0.03 rad would
+    refuse every chunk more than 43 ms late (a loaded test machine), and the press would
+    never reach what it presses on. Nothing else of the cell changes: not a limit, not the
+    geometry, not a clearance."""
     text = base.read_text()
-    changes = ((r"(?m)^launch = true( *)#", r"launch = false\1#"),
+    changes = [(r"(?m)^launch = true( *)#", r"launch = false\1#"),
                (r"(?m)^port = 0( *)#", rf"port = {port}\1#"),
-               (r"(?m)^cycles = \d+", "cycles = 1"))
+               (r"(?m)^cycles = \d+", "cycles = 1")]
     for pattern, new in changes:
         text, count = re.subn(pattern, new, text, count=1)
         if count != 1:
             raise ValueError(f"{base}: no line matches {pattern!r}")
+    if max_speed is not None and max_speed > REFERENCE_SPEED:
+        text = _paced(text, base, max_speed / REFERENCE_SPEED)
     path = directory / f"pressing-{base.name}"
     path.write_text(text + f'\n[operator]\nsocket = "{directory / "operator.sock"}"\n')
     return path
+
+
+def _paced(text: str, base: Path, factor: float) -> str:
+    for gate in PACED_GATES:
+        pattern = rf"(\[phases\.PRE_CONTACT\][^\[]*?^{gate} = )([0-9.]+)"
+        text, count = re.subn(pattern, lambda m: f"{m[1]}{float(m[2]) * factor:.4f}", text,
+                              count=1, flags=re.MULTILINE | re.DOTALL)
+        if count != 1:
+            raise ValueError(f"{base}: no {gate} in [phases.PRE_CONTACT]")
+    return text
 
 
 @contextmanager
@@ -140,7 +167,7 @@ def run_press(press: Press, manifest_name: str, directory: Path) -> Path:
     base = MANIFESTS / manifest_name
     goal = press_goal(press, base)
     with serving(base, goal, press.max_speed) as port:
-        manifest = pressing_manifest(base, port, directory)
+        manifest = pressing_manifest(base, port, directory, press.max_speed)
         journals = directory / "runs"
         subprocess.run([sys.executable, "-m", "kernel.cli", "run", str(manifest),
                         "--journal-dir", str(journals)], cwd=ROOT, check=False,

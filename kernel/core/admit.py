@@ -39,7 +39,7 @@ from assurance.merge import MergeDraft, MergeInputs, MergePlan, draft_merge
 from assurance.projection import Projection, project, project_fast
 from assurance.reasons import ReasonCode as R
 from assurance.reasons import canonical
-from kernel.core.clearance import clear_at_a_glance, clearance_job, collision_line
+from kernel.core.clearance import clearance_job, collision_line
 from kernel.core.effects import ChunkDecision, Compute
 from kernel.core.jobs import (
     ClearanceJob,
@@ -241,15 +241,12 @@ def _projecting(state: CoreState, chunk: Chunk, seen: Seen, parked: Parked | Non
 
 def _clearance(state: CoreState, job: ClearanceJob,
                parked: Parked | None) -> ClearanceResult | None:
-    """The check's result if a job computed it for these very rows, or if one distance query
-    here proves the rows clear (the common case, away from every solid); else None: a job must
-    check them, or, after the queue changed under two jobs already (rare), this step does."""
+    """The check's result if a job computed it for these very rows (else None: a job must),
+    or computed here after the queue changed under two jobs already (rare)."""
     if parked is not None and parked.checked is not None:
         asked, result = parked.checked
         if msgspec.structs.replace(asked, job_id=0) == job:
             return result
-    if clear_at_a_glance(state, job):
-        return ClearanceResult(job_id=0, clear=True)
     if parked is not None and parked.clearance_jobs >= _MAX_PROJECTION_JOBS:
         found = run_job(job, state.config.limits, None, state.config.collision)
         return found if isinstance(found, ClearanceResult) else None

@@ -11,7 +11,7 @@ import pytest
 
 from assurance.fallback import Mode
 from kernel.app.task import assembly_runner
-from skills.assembly import AssemblyRunner, AssemblyStep, PhaseRequest, Sensed
+from skills.assembly import AssemblyRunner, AssemblyStep, MoveRequest, PhaseRequest, Sensed
 from skills.contact import ContactState
 from skills.phases import TaskPhase
 from skills.planner import MoveStatus
@@ -73,3 +73,21 @@ def test_a_fallbacks_hold_does_not_count_against_the_approach(runner: AssemblyRu
 def test_the_approach_times_out_while_running(runner: AssemblyRunner) -> None:
     asked = _drive(runner, 0.0, runner.timing.approach_timeout_s + 0.5, Mode.RUNNING)
     assert _gave_up(asked)
+
+
+CONTORTED = np.array([0.0414, 0.35, -0.7, -3.0, -1.5708, 0.0414])
+"""Where the elbow press once left the arm after its approach timed out: the upper arm down at
+the table, the tool turned up; no tool-down pose straight above it is reachable from here."""
+
+
+def test_a_retreat_from_where_no_lift_is_reachable_goes_home_in_joint_space(
+        runner: AssemblyRunner) -> None:
+    """It crashed warden before (an uncaught PlanningError from the retreat lift's IK)."""
+    runner._enter(AssemblyStep.RELEASE, 0)
+    sensed = Sensed(t_ns=TICK_NS * 10, q=CONTORTED, qd=np.zeros(6), force_norm=0.0,
+                    fresh=True, driver_ok=True)
+    asked = runner.update(sensed, _View(Mode.RUNNING, phase=TaskPhase.RETREAT))
+    [move] = [r for r in asked if isinstance(r, MoveRequest)]
+    assert np.array_equal(move.target, runner.layout.home_q)
+    assert runner.step is AssemblyStep.RETREAT_HOME
+    assert "no retreat lift" in runner._failure
