@@ -21,6 +21,16 @@ BUILTIN: dict[str, str] = {
     "canopen402": "drivers.canopen402.driver:CiA402Driver",
 }
 
+BUILTIN_SETTINGS: dict[str, str] = {
+    "ur_rtde": "drivers.ur_rtde.settings:URSettings",
+    "dynamixel": "drivers.dynamixel.settings:DynamixelSettings",
+    "canopen402": "drivers.canopen402.settings:CiA402Settings",
+}
+"""Where a built-in vendor driver's settings type lives (its module also has ``ADDRESS_KEYS``):
+a reader of ``[driver]`` such as the safety monitor decodes the table without loading the driver
+and what the driver relies on of warden's core (tests/drivers/test_registry_settings.py keeps
+these equal to the driver classes' own)."""
+
 
 class UnknownDriver(LookupError):
     pass
@@ -67,10 +77,22 @@ def settings_for(name: str, table: Mapping[str, Any], where: Where | str, *,
         SettingsError: naming ``where.key`` (the subclass ``where`` makes: a
             ``ScenarioError`` for the manifest loader's place).
     """
-    driver = load(name)
+    settings_type, address_keys = declared_settings(name)
     if address_filled_in:
-        table = {**driver.address_keys, **table}
-    return read_table(driver.settings_type, table, where)
+        table = {**address_keys, **table}
+    return read_table(settings_type, table, where)
 
 
-__all__ = ["BUILTIN", "SettingsError", "UnknownDriver", "available", "load", "settings_for"]
+def declared_settings(name: str) -> tuple[type[Any], Mapping[str, Any]]:
+    """The settings type and the address keys the driver ``name`` declares; a built-in's
+    without importing the driver (:data:`BUILTIN_SETTINGS`)."""
+    if name in BUILTIN_SETTINGS and name in BUILTIN and available()[name] == BUILTIN[name]:
+        module_name, _, attribute = BUILTIN_SETTINGS[name].partition(":")
+        module = importlib.import_module(module_name)
+        return getattr(module, attribute), module.ADDRESS_KEYS
+    driver = load(name)
+    return driver.settings_type, driver.address_keys
+
+
+__all__ = ["BUILTIN", "BUILTIN_SETTINGS", "SettingsError", "UnknownDriver", "available",
+           "declared_settings", "load", "settings_for"]

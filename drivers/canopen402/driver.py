@@ -72,8 +72,7 @@ class CiA402Driver(Driver):
     capabilities = frozenset({CommandKind.POSITION, CommandKind.HOLD, CommandKind.STOP})
     """Cyclic synchronous position only: no VELOCITY (CSV) and no IMPEDANCE (CST with a
     compliance law warden does not run), so compliant targets go out as positions."""
-    address_keys: ClassVar[Mapping[str, str]] = {"interface": "udp_multicast",
-                                                 "channel": "239.0.0.1"}
+    address_keys: ClassVar[Mapping[str, str]] = settings_module.ADDRESS_KEYS
     default_name = "canopen402"
     device_watchdog = staticmethod(settings_module.device_watchdog)
     """What stops the arm when warden's commands stop, per manifest table (None: off)."""

@@ -227,3 +227,7 @@ def device_watchdog_ms(settings: CiA402Settings, control_period_ms: float) -> fl
     if settings.watchdog_ms <= 0:
         return None
     return float(settings.watchdog_ms)
+
+
+ADDRESS_KEYS: Mapping[str, str] = {"interface": "udp_multicast", "channel": "239.0.0.1"}
+"""The settings that say where the device is, with placeholders (``Driver.address_keys``)."""

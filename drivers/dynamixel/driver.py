@@ -72,7 +72,7 @@ class DynamixelDriver(Driver):
     capabilities = frozenset({CommandKind.POSITION, CommandKind.HOLD, CommandKind.STOP})
     """Position mode only: no VELOCITY (Operating Mode 1) and no IMPEDANCE (the servos have
     no joint-space compliance), so compliant targets go out as positions."""
-    address_keys: ClassVar[Mapping[str, str]] = {"port": "/dev/null"}
+    address_keys: ClassVar[Mapping[str, str]] = settings_module.ADDRESS_KEYS
     default_name = "dynamixel"
     device_watchdog = staticmethod(settings_module.device_watchdog)
     """What stops the arm when warden's commands stop, per manifest table (None: off)."""

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Mapping
 from typing import Annotated
 
 from msgspec import Meta
@@ -164,3 +165,7 @@ def device_watchdog_ms(settings: DynamixelSettings, control_period_ms: float) ->
     if settings.watchdog_periods <= 0:
         return None
     return settings.watchdog_periods * control_period_ms
+
+
+ADDRESS_KEYS: Mapping[str, str] = {"port": "/dev/null"}
+"""The settings that say where the device is, with placeholders (``Driver.address_keys``)."""

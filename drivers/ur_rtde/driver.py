@@ -73,7 +73,7 @@ class URRTDEDriver(Driver):
                               CommandKind.STOP})
     """No IMPEDANCE: servoJ and speedJ only (the controller's force mode is not joint-space
     impedance), so compliant targets go out as positions."""
-    address_keys: ClassVar[Mapping[str, str]] = {"host": "127.0.0.1"}
+    address_keys: ClassVar[Mapping[str, str]] = settings_module.ADDRESS_KEYS
     default_name = "ur_rtde"
     device_watchdog = staticmethod(settings_module.device_watchdog)
     """What stops the arm when warden's commands stop, per manifest table (None: off)."""

@@ -164,3 +164,7 @@ def device_watchdog_ms(settings: URSettings, control_period_ms: float) -> float 
     if settings.watchdog_periods <= 0:
         return None
     return settings.watchdog_periods * control_period_ms
+
+
+ADDRESS_KEYS: Mapping[str, str] = {"host": "127.0.0.1"}
+"""The settings that say where the device is, with placeholders (``Driver.address_keys``)."""

@@ -187,7 +187,7 @@ def test_a_joint_past_the_monitors_limit_is_stopped_through_nmt(
     try:
         monitor.wait_connected()
         warden = Warden(manifest, tmp_path)  # warden's own limits are the wide ones
-        crossed_at, speed = _crossing(control, warden)
+        crossed_at, speed = _crossing(control, warden, monitor)
         wait_for(lambda: _quick_stopped_at_rest(control), "the monitor's stop", timeout_s=5,
                  poll_s=0.002)
         elapsed = time.monotonic() - crossed_at
@@ -208,10 +208,14 @@ def test_a_joint_past_the_monitors_limit_is_stopped_through_nmt(
     assert losses == {node: ["NMT stopped"] for node in (*JOINTS, "7")}
 
 
-def _crossing(control: Address, warden: Warden) -> tuple[float, float]:
+def _crossing(control: Address, warden: Warden, monitor: Monitor) -> tuple[float, float]:
     """When a poll first sees the shoulder past the monitor's limit (its margin included)."""
     def past() -> tuple[float, float] | None:
-        assert warden.alive(), warden.log_path.read_text()[-2000:]
+        if not warden.alive():  # say who stopped what: a CI run once saw warden stop early
+            raise AssertionError(
+                f"warden ended before the shoulder crossed the limit; warden's log ends "
+                f"{warden.log_path.read_text()[-2000:]}\nthe monitor's log ends "
+                f"{monitor.log_path.read_text()[-3000:]}\nthe drives: {_drives(control)}")
         truth = _truth(control)
         if truth["q"][1] > SHOULDER_LIMIT + MARGIN_RAD:
             return time.monotonic(), abs(truth["qd"][1])
