@@ -9,7 +9,7 @@ meaning can be read on its own. ``[policy]`` is the link's own type
 from __future__ import annotations
 
 from enum import StrEnum
-from typing import Annotated, Any
+from typing import Annotated
 
 import msgspec
 from msgspec import Meta
@@ -63,6 +63,18 @@ class JournalSettings(msgspec.Struct, frozen=True, kw_only=True):
     directory: str = "runs"
 
 
+class WorkspaceSection(msgspec.Struct, frozen=True, kw_only=True):
+    lower: tuple[float, float, float]
+    upper: tuple[float, float, float]
+
+
+class EnvelopeSection(msgspec.Struct, frozen=True, kw_only=True):
+    """A scenario's ``envelope`` section, as a trial's journal header records it."""
+
+    workspace: WorkspaceSection
+    max_wrist_force_n: float
+
+
 class TrialEnvelope(msgspec.Struct, frozen=True, kw_only=True):
     """``[trial]``: every bound of a bounded trial, all of them required."""
 
@@ -81,9 +93,9 @@ class TrialEnvelope(msgspec.Struct, frozen=True, kw_only=True):
         return TrialBounds(WorkspaceBox(list(self.workspace_lower), list(self.workspace_upper)),
                            self.max_wrist_force_n)
 
-    def section(self) -> dict[str, Any]:
+    def section(self) -> EnvelopeSection:
         """The scenario's ``envelope`` section the journal's header records (a replay reads
         it back with :func:`kernel.config.envelope.trial_bounds`)."""
-        return {"workspace": {"lower": list(self.workspace_lower),
-                              "upper": list(self.workspace_upper)},
-                "max_wrist_force_n": self.max_wrist_force_n}
+        return EnvelopeSection(
+            workspace=WorkspaceSection(lower=self.workspace_lower, upper=self.workspace_upper),
+            max_wrist_force_n=self.max_wrist_force_n)

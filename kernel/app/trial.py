@@ -140,7 +140,8 @@ def _bounded(manifest: Manifest, envelope: TrialEnvelope) -> Manifest:
         raise ManifestError(str(error)) from None
     cell = msgspec.structs.replace(manifest.cell,
                                    cycles=min(manifest.cell.cycles, envelope.max_cycles))
-    sections = ScenarioSections.of({**scenario, "envelope": envelope.section()})
+    sections = ScenarioSections.of({**scenario,
+                                   "envelope": msgspec.to_builtins(envelope.section())})
     return dataclasses.replace(manifest, core=core, sections=sections, cell=cell)
 
 
