@@ -31,6 +31,28 @@ def die_with_parent() -> None:
         sys.exit(f"{sys.argv[0]}: the parent {expected} is gone")
 
 
+def wait_for_stop_signal() -> None:
+    """Block the main thread until SIGTERM or SIGINT arrives.
+
+    The handlers do nothing: the kernel-side write to the wakeup pipe (``set_wakeup_fd``) ends
+    the read, even for a signal that came before it. (A handler calling
+    ``threading.Event.set()`` while the main thread sat in that Event's ``wait()`` could wait
+    for the Event's own lock forever: kernel/safety/service.py's monitor hung so.)"""
+    read_fd, write_fd = os.pipe()
+    os.set_blocking(write_fd, False)
+    previous_fd = signal.set_wakeup_fd(write_fd)
+    previous = {signum: signal.signal(signum, lambda *_: None)
+                for signum in (signal.SIGTERM, signal.SIGINT)}
+    try:
+        os.read(read_fd, 1)
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+        signal.set_wakeup_fd(previous_fd)
+        os.close(read_fd)
+        os.close(write_fd)
+
+
 def main() -> None:
     if len(sys.argv) < 2:
         sys.exit("usage: python -m stubs.child MODULE [ARGS...]")

@@ -23,7 +23,7 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 import structlog
 
@@ -36,6 +36,15 @@ if TYPE_CHECKING:
     from kernel.safety.space import SpaceCheck
 
 log = structlog.get_logger("warden.safety")
+
+
+class Stopping(Protocol):
+    """What ends :meth:`Monitor.run`: the service's :class:`~kernel.safety.service.SignalledStop`,
+    or a ``threading.Event`` another thread sets."""
+
+    def is_set(self) -> bool: ...
+
+    def wait(self, timeout: float) -> bool: ...
 PROBE_EVERY_NS = 1_000_000_000
 RECONNECT_EVERY_NS = 1_000_000_000
 WATCHING_SLACK_NS = 50_000_000
@@ -85,7 +94,7 @@ class Monitor:
 
     # -- the loop -----------------------------------------------------------------------------
 
-    def run(self, stopping: threading.Event, after_check: Callable[[], Any] | None = None) -> None:
+    def run(self, stopping: Stopping, after_check: Callable[[], Any] | None = None) -> None:
         """Check every period until ``stopping`` is set; a late check is never caught up."""
         deadline = self.clock()
         while not stopping.is_set():

@@ -13,7 +13,7 @@ import contextlib
 import grp
 import os
 import signal
-import threading
+import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -143,9 +143,9 @@ def _watch(chosen: Plan, monitor: Monitor, status: StatusServer) -> None:
     realtime = try_realtime(PRIORITY)
     log_report(log, realtime)
     service = ServiceNotifier.from_env()
-    stopping = threading.Event()
+    stopping = SignalledStop()
     try:
-        with _stop_on_signals(stopping):
+        with stop_on_signals(stopping):
             monitor.check()  # one full check before anyone is told the monitor watches
             status.start()
             log.info("safety monitor watching", manifest=str(chosen.manifest.path),
@@ -185,8 +185,32 @@ def _connected(chosen: Plan) -> DeviceWatch:
     return watch
 
 
+class SignalledStop:
+    """The monitor's stop, which SIGTERM or SIGINT requests: a plain flag, never a lock.
+
+    A signal handler runs in the main thread between two of its bytecodes, and the monitor's
+    main thread spends its life in the wait between two checks. With a ``threading.Event``
+    there, a handler calling ``set()`` while ``wait()`` held the Event's lock waited for it
+    forever: a monitor its test had stopped hung at real-time priority 60 until killed (and a
+    systemd stop would have ended in SIGKILL). The wait is a sleep of one period at most, so a
+    stop takes effect at the next check."""
+
+    def __init__(self) -> None:
+        self.requested = False
+
+    def set(self) -> None:
+        self.requested = True
+
+    def is_set(self) -> bool:
+        return self.requested
+
+    def wait(self, timeout: float) -> bool:
+        time.sleep(timeout)  # a signal's handler runs inside it; the sleep then ends as due
+        return self.requested
+
+
 @contextlib.contextmanager
-def _stop_on_signals(stopping: threading.Event) -> Iterator[None]:
+def stop_on_signals(stopping: SignalledStop) -> Iterator[None]:
     previous = {signum: signal.signal(signum, lambda *_: stopping.set())
                 for signum in (signal.SIGTERM, signal.SIGINT)}
     try:

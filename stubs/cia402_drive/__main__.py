@@ -16,11 +16,10 @@ from __future__ import annotations
 import argparse
 import gc
 import json
-import signal
 import sys
-import threading
 from typing import Any
 
+from stubs.child import wait_for_stop_signal
 from stubs.cia402_drive.bus_claim import BusInUse
 from stubs.cia402_drive.emulator import (
     GRIPPER_COUNTS_PER_M,
@@ -90,15 +89,12 @@ def main(argv: list[str] | None = None) -> int:
     handlers["drives"] = lambda _: {"drives": emulator.report()}
     handlers["motion"] = lambda _: emulator.motion()
     faults = FaultControlServer("127.0.0.1", args.fault_port, handlers).start()
-    stop = threading.Event()
-    for signum in (signal.SIGTERM, signal.SIGINT):
-        signal.signal(signum, lambda *_: stop.set())
     ready = {"fault_port": faults.address[1], "interface": args.interface,
              "channel": args.channel, "port": args.port, "nodes": list(args.nodes),
              "gripper_node": args.gripper_node, "plant": args.plant}
     print("READY " + json.dumps(ready), flush=True)
     try:
-        stop.wait()
+        wait_for_stop_signal()
     finally:
         # The fault port closes with the process; FaultControlServer.stop() would first wait
         # out serve_forever's 0.5 s poll, on every test's teardown.

@@ -10,10 +10,9 @@ from __future__ import annotations
 import argparse
 import ipaddress
 import json
-import signal
 import sys
-import threading
 
+from stubs.child import wait_for_stop_signal
 from stubs.fault_control import FaultControlServer
 from stubs.plant.base import KinematicPlant, Plant
 from stubs.plant.world_port import world_handlers
@@ -93,7 +92,7 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_ADDRESS_IN_USE
     control.start()
     _announce(args, control.address)
-    _wait_for_signal()
+    wait_for_stop_signal()
     control.stop()
     controller.stop()
     return 0
@@ -108,12 +107,6 @@ def _announce(args: argparse.Namespace, control_address: tuple[str, int]) -> Non
     print("READY " + json.dumps(ready), flush=True)
 
 
-def _wait_for_signal() -> None:
-    done = threading.Event()
-    for signum in (signal.SIGTERM, signal.SIGINT):
-        signal.signal(signum, lambda *_: done.set())
-    while not done.wait(0.5):
-        pass
 
 
 if __name__ == "__main__":
