@@ -72,13 +72,16 @@ def _truth(drives: DriveEmulator) -> tuple[tuple[float, ...], tuple[float, ...]]
 async def _stream(driver: ManagedDriver, seconds: float, step: float = 0.0,
                   observe: tuple[CiA402Watch, DriveEmulator] | None = None,
                   ) -> list[tuple[Any, Any]]:
-    """Read and write every period, as the cell's loop does (joint 0 moving by ``step``); with
+    """Read and write every period, as the cell's loop does (joint 0 moving by ``step`` a
+    period, so at ``step / PERIOD_S`` whatever this test's own loop's lateness: a step per
+    iteration once drove it at 0.15 rad/s instead of 0.5 inside the loaded suite); with
     ``observe``, the watch's sample and the plant's truth after each write."""
     q = list((await driver.read()).q)
     seen = []
-    for _ in range(round(seconds / PERIOD_S)):
+    first, began = q[0], time.monotonic()
+    for index in range(round(seconds / PERIOD_S)):
         await driver.read()
-        q[0] += step
+        q[0] = first + step * max(index + 1, (time.monotonic() - began) / PERIOD_S)
         assert (await driver.write(Command(kind=CommandKind.POSITION, q=tuple(q)))).accepted
         await asyncio.sleep(PERIOD_S)
         if observe is not None:
@@ -200,10 +203,24 @@ async def test_an_emergency_is_logged(drives: DriveEmulator, watch: CiA402Watch)
         await _sample_soon(watch)
         with structlog.testing.capture_logs() as logs:
             drives.inject("emcy", node=2)
-            await asyncio.sleep(0.1)
-            watch.sample()
+            await _until_logged(watch, logs, ("drive state", "node 2", "entered FAULT"))
         del driver
-    events = [(e["event"], e["drive"], e["detail"]) for e in logs]
+    events = _events(logs)
     assert ("drive emergency", "node 2",
             "EMCY 0x2310 (continuous over-current), error register 0x03") in events
     assert ("drive state", "node 2", "entered FAULT") in events
+
+
+def _events(logs: list[dict[str, Any]]) -> list[tuple[str, str, str]]:
+    return [(e["event"], e["drive"], e["detail"]) for e in logs]
+
+
+async def _until_logged(watch: CiA402Watch, logs: list[dict[str, Any]],
+                        event: tuple[str, str, str]) -> None:
+    """Sample until ``event`` is logged, for 2 s at most: the state comes in the drive's next
+    TPDO, one SYNC after the EMCY, later when the suite loads this process (a single sample
+    100 ms after the EMCY once missed it)."""
+    deadline = time.monotonic() + 2.0
+    while event not in _events(logs) and time.monotonic() < deadline:
+        await asyncio.sleep(0.02)
+        watch.sample()
