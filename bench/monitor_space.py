@@ -24,10 +24,10 @@ if __package__ in (None, ""):  # run as a script: the repository's packages befo
 import numpy as np
 
 from kernel.cell_geometry import geometry_table
+from kernel.model_file import BUILTIN
 from kernel.safety.checks import Limits, Sample, breaches
 from kernel.safety.settings import SafetySettings
 from kernel.safety.space import SpaceCheck
-from kernel.safety.view import BUILTIN_MODELS
 from kernel.scenario.fields import Where
 
 CELL = """
@@ -72,7 +72,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     geometry = geometry_table(tomllib.loads(CELL), Where("bench", ""))
     assert geometry is not None
-    space = SpaceCheck(BUILTIN_MODELS["ur5e"], 6, geometry)
+    space = SpaceCheck(BUILTIN["ur5e"], 6, geometry)
     settings = SafetySettings(max_wrist_force_n=150.0)
     period_us = settings.check_period_ms * 1e3
     limits = Limits((-6.3,) * 6, (6.3,) * 6, (3.2,) * 6, 150.0, 0.02, 0.1)

@@ -17,29 +17,13 @@ from __future__ import annotations
 
 import hashlib
 import os
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from pathlib import Path
 
 import pinocchio as pin
 
 from assurance.kinematics import ArmKinematics, KinematicsConfig
-
-MODELS_DIR = Path(__file__).resolve().parents[1] / "manifests" / "models"
-
-
-@dataclass(frozen=True, slots=True)
-class ModelSpec:
-    path: Path
-    tcp_frame: str
-    joints: tuple[str, ...] | None = None
-    """The arm's joints; None: the model's first ``dof`` joints."""
-
-
-BUILTIN: dict[str, ModelSpec] = {
-    "ur5e": ModelSpec(MODELS_DIR / "ur5e.xml", "tcp", (
-        "shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint", "wrist_1_joint",
-        "wrist_2_joint", "wrist_3_joint")),
-}
+from kernel.model_file import ModelSpec
 
 
 class ModelError(ValueError):

@@ -20,10 +20,10 @@ from kernel.app.context import CellContext
 from kernel.app.control import ControlLoop
 from kernel.app.device import DeviceWorld, World
 from kernel.app.task import assembly_runner
-from kernel.config.kinematics import model_spec
 from kernel.core.config import CoreConfig
 from kernel.core.runtime import Core
 from kernel.manifest import Manifest, ManifestError
+from kernel.model_file import model_spec
 from kernel.scenario.fields import Where
 from kernel.sections import ScenarioSections
 from kernel.shell.gateway import CoreGateway

@@ -33,8 +33,8 @@ from kernel.app.device import driver_from_manifest
 from kernel.app.session import RunContext
 from kernel.app.trial_limits import check_envelope
 from kernel.config.build import build_config
-from kernel.config.kinematics import model_spec
 from kernel.manifest import Manifest, ManifestError, TrialEnvelope, load_manifest
+from kernel.model_file import model_spec
 from kernel.robot_model import digest
 from kernel.safety.status import ask
 from kernel.scenario.fields import ScenarioError, Where

@@ -14,7 +14,6 @@ compliantly); a Cartesian (``base_delta``) session needs it.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from pathlib import Path
 from typing import Any
 
 from assurance.cartesian import BASE_DELTA, CARTESIAN_UNITS, CartesianMapper, action_width
@@ -22,7 +21,8 @@ from assurance.kinematics import ArmKinematics, WorkspaceBox
 from assurance.limits import JointLimits
 from kernel.config.workspace import workspace_box
 from kernel.core.config import ClientSide
-from kernel.robot_model import BUILTIN, ModelError, ModelSpec, load_kinematics
+from kernel.model_file import BUILTIN, model_spec
+from kernel.robot_model import ModelError, load_kinematics
 from kernel.scenario.fields import Where, mapping, text
 
 
@@ -44,32 +44,6 @@ def robot_kinematics(
         raise where.at("model_sha256").error(
             f"{spec.path} changed since this was recorded (its SHA-256 differs)")
     return kinematics
-
-
-def model_spec(robot: Mapping[str, Any], where: Where) -> ModelSpec | None:
-    if robot.get("kinematics") is not None and robot.get("model") is not None:
-        raise where.at("model").error("name either 'kinematics' (a built-in model) or 'model' "
-                                      "(a file), not both")
-    if robot.get("kinematics") is not None:
-        name = text(robot, "kinematics", where)
-        if name not in BUILTIN:
-            raise where.at("kinematics").error(
-                f"unknown model {name!r} (expected one of {', '.join(BUILTIN)})")
-        return BUILTIN[name]
-    if robot.get("model") is None:
-        for key in ("tcp_frame", "joints", "model_sha256"):
-            if key in robot:
-                raise where.at(key).error("needs 'model' (the robot model file)")
-        return None
-    path = Path(text(robot, "model", where))
-    if not path.is_absolute():
-        path = Path(where.file).resolve().parent / path
-    joints = robot.get("joints")
-    if joints is not None and not (isinstance(joints, list) and joints
-                                   and all(isinstance(j, str) and j for j in joints)):
-        raise where.at("joints").error("must be a list of joint names")
-    return ModelSpec(path, text(robot, "tcp_frame", where),
-                     tuple(joints) if joints is not None else None)
 
 
 def cartesian_mapper(

@@ -35,8 +35,8 @@ import mujoco
 import numpy as np
 
 from kernel.cell_geometry import GeometrySettings, Shape, Solid
+from kernel.model_file import ModelSpec
 from kernel.safety.checks import Breach, Finding
-from kernel.safety.view import ArmModel
 
 LINK_BIT, TOOL_BIT = 1, 2
 """Contact masks: a link's geom has contype LINK_BIT, the tool's TOOL_BIT, both conaffinity 0;
@@ -82,7 +82,7 @@ class SpaceCheck:
     """The arm's model with the checked solids in its world; :meth:`findings` judges one
     measured configuration."""
 
-    def __init__(self, arm: ArmModel, dof: int, geometry: GeometrySettings) -> None:
+    def __init__(self, arm: ModelSpec, dof: int, geometry: GeometrySettings) -> None:
         """Raises:
             SpaceModelError: the file is unreadable, not a model MuJoCo compiles, or lacks
                 the arm's joints.
@@ -159,7 +159,7 @@ def _spec(path: Path) -> mujoco.MjSpec:
         raise SpaceModelError(f"{path}: not a model MuJoCo reads: {error}") from None
 
 
-def _tool_geoms(model: mujoco.MjModel, arm: ArmModel) -> list[int]:
+def _tool_geoms(model: mujoco.MjModel, arm: ModelSpec) -> list[int]:
     """The geoms of the body that carries the TCP site (or is the TCP frame) and of every body
     below it."""
     site = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, arm.tcp_frame)
@@ -179,7 +179,7 @@ def _tool_geoms(model: mujoco.MjModel, arm: ArmModel) -> list[int]:
     return [g for g in range(model.ngeom) if below(int(model.geom_bodyid[g]))]
 
 
-def _arm_addresses(model: mujoco.MjModel, arm: ArmModel, dof: int) -> np.ndarray:
+def _arm_addresses(model: mujoco.MjModel, arm: ModelSpec, dof: int) -> np.ndarray:
     names = arm.joints if arm.joints is not None else tuple(
         model.joint(j).name for j in range(min(dof, model.njnt)))
     if len(names) != dof:

@@ -3,12 +3,12 @@
 file, and nothing else.
 
 The monitor reads the manifest file itself, with the very parsers warden's configuration uses
-for these tables (:mod:`kernel.manifest_tables`), so a limit means the same to both and a bad
-value is refused with the same "file: table.key: why" message. It does not build warden's core
-configuration: no phase cards, policy or session is read, and the robot model is only
-resolved to its file here (the space check, :mod:`kernel.safety.space`, loads it with MuJoCo,
-not with warden's Pinocchio code), so nothing of warden's core is imported, and a mistake
-there is not one here.
+for these tables (:mod:`kernel.manifest_tables`, and :mod:`kernel.model_file` for which model
+file ``[robot]`` names), so a limit means the same to both and a bad value is refused with the
+same "file: table.key: why" message. It does not build warden's core configuration: no phase
+cards, policy or session is read, and the robot model is only located here (the space check,
+:mod:`kernel.safety.space`, loads it with MuJoCo, not with warden's Pinocchio code), so nothing
+of warden's core is imported, and a mistake there is not one here.
 """
 
 from __future__ import annotations
@@ -34,30 +34,11 @@ from kernel.manifest_tables import (
     safety_table,
     table,
 )
+from kernel.model_file import ModelSpec, model_spec
 from kernel.safety.settings import SafetySettings
 from kernel.scenario.document import check_document, decoded, read_bytes
-from kernel.scenario.fields import ScenarioError, Where, mapping, text
+from kernel.scenario.fields import ScenarioError, Where, mapping
 from kernel.tables import read_table
-
-
-class ArmModel(msgspec.Struct, frozen=True):
-    """The arm's model file as ``[robot]`` names it (kernel/safety/space.py loads it)."""
-
-    path: Path
-    tcp_frame: str
-    """The TCP: a site (MJCF) or a body of the model; its body and those below are the tool."""
-    joints: tuple[str, ...] | None
-    """The arm's joints, base to tool; None: the model's first ``dof`` joints."""
-
-
-MODELS_DIR = Path(__file__).resolve().parents[2] / "manifests" / "models"
-BUILTIN_MODELS: dict[str, ArmModel] = {
-    "ur5e": ArmModel(MODELS_DIR / "ur5e.xml", "tcp", (
-        "shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint", "wrist_1_joint",
-        "wrist_2_joint", "wrist_3_joint")),
-}
-"""``[robot] kinematics`` names, resolved as warden's loader resolves them
-(kernel/robot_model.py; tests/safety/test_view.py checks both agree on every shipped manifest)."""
 
 
 class ViewError(ScenarioError):
@@ -81,7 +62,7 @@ class MonitorView(msgspec.Struct, frozen=True):
     emulator: EmulatorSettings
     geometry: GeometrySettings | None = None
     """``[geometry]``; None: no such table (the monitor checks no space)."""
-    arm_model: ArmModel | None = None
+    arm_model: ModelSpec | None = None
     """The arm's model file (``[robot] kinematics`` or ``model``), read with ``[geometry]``;
     None: none named, or no ``[geometry]``."""
 
@@ -125,34 +106,12 @@ def _view(path: Path, raw: str, digest: str) -> MonitorView:
         emulator=emulator, geometry=geometry,
         # The model matters to the monitor only for the space check: without [geometry] a
         # mistake in naming it is warden's refusal, not the monitor's.
-        arm_model=_arm_model(robot, where.at("robot")) if geometry is not None else None)
+        arm_model=model_spec(robot, where.at("robot")) if geometry is not None else None)
 
-
-
-def _arm_model(robot: Mapping[str, Any], where: Where) -> ArmModel | None:
-    """The model file ``[robot]`` names: a built-in name, or a path relative to the manifest
-    (warden's loader refuses both at once; here the file is only located)."""
-    if robot.get("kinematics") is not None:
-        name = text(robot, "kinematics", where)
-        if name not in BUILTIN_MODELS:
-            raise where.at("kinematics").error(
-                f"unknown model {name!r} (expected one of {', '.join(BUILTIN_MODELS)})")
-        return BUILTIN_MODELS[name]
-    if robot.get("model") is None:
-        return None
-    path = Path(text(robot, "model", where))
-    if not path.is_absolute():
-        path = Path(where.file).resolve().parent / path
-    joints = robot.get("joints")
-    if joints is not None and not (isinstance(joints, list) and joints
-                                   and all(isinstance(j, str) and j for j in joints)):
-        raise where.at("joints").error("must be a list of joint names")
-    return ArmModel(path, text(robot, "tcp_frame", where),
-                    tuple(joints) if joints is not None else None)
 
 
 def _emulator(doc: Mapping[str, Any], where: Where) -> EmulatorSettings:
     return read_table(EmulatorSettings, table(doc, "emulator", where), where.at("emulator"))
 
 
-__all__ = ["ArmModel", "MonitorView", "SafetySettings", "ViewError", "read_view"]
+__all__ = ["MonitorView", "SafetySettings", "ViewError", "read_view"]

@@ -13,7 +13,8 @@ import pytest
 
 from kernel.cli import main
 from kernel.manifest import load_manifest
-from kernel.robot_model import BUILTIN, digest
+from kernel.model_file import BUILTIN
+from kernel.robot_model import digest
 from kernel.signing import sign
 from tests.cell.harness import MANIFESTS
 from tests.cell.test_check import DRIVER_ROWS, SECONDS, device, rows

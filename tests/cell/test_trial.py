@@ -23,7 +23,8 @@ from typing import Any
 import pytest
 
 from kernel.cli_operator import send
-from kernel.robot_model import BUILTIN, digest
+from kernel.model_file import BUILTIN
+from kernel.robot_model import digest
 from kernel.signing import sign
 from stubs.ur_controller.launch import EmulatedController
 from tests.cell.harness import MANIFESTS

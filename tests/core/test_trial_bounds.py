@@ -13,7 +13,8 @@ from kernel.core.effects import Setpoint, Stop
 from kernel.core.events import MoveEvent, StateEvent, TickEvent
 from kernel.core.lines import TransitionLine
 from kernel.core.runtime import Core
-from kernel.robot_model import BUILTIN, load_kinematics
+from kernel.model_file import BUILTIN
+from kernel.robot_model import load_kinematics
 from kernel.scenario.fields import ScenarioError, Where
 from tools.scenarios.base import ScenarioSpec
 

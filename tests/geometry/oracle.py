@@ -16,7 +16,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from kernel.robot_model import MODELS_DIR
+from kernel.model_file import MODELS_DIR
 
 ARM_JOINTS = ("shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint", "wrist_1_joint",
               "wrist_2_joint", "wrist_3_joint")

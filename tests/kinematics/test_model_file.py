@@ -21,7 +21,8 @@ import pytest
 
 from kernel.config.build import robot_limits
 from kernel.config.kinematics import robot_kinematics
-from kernel.robot_model import BUILTIN, ModelSpec, load_kinematics
+from kernel.model_file import BUILTIN, ModelSpec
+from kernel.robot_model import load_kinematics
 from kernel.scenario.fields import ScenarioError, Where
 
 TOOL_OFFSET_M = 0.30

@@ -22,18 +22,19 @@ import pinocchio as pin
 import pytest
 
 from kernel.cell_geometry import GeometrySettings, geometry_table
+from kernel.model_file import BUILTIN
 from kernel.safety.checks import Breach, Limits, Sample
 from kernel.safety.heartbeat import HeartbeatReceiver
 from kernel.safety.monitor import Monitor
 from kernel.safety.service import StartError, plan
 from kernel.safety.settings import SafetySettings
 from kernel.safety.space import SpaceCheck, clearance_of
-from kernel.safety.view import BUILTIN_MODELS, ViewError, read_view
+from kernel.safety.view import ViewError, read_view
 from kernel.scenario.fields import Where
 from tests.safety.support import MANIFESTS, free_port, safety_table
 from tests.safety.test_monitor import Clock, ScriptedWatch
 
-ARM = BUILTIN_MODELS["ur5e"]
+ARM = BUILTIN["ur5e"]
 HOME = (0.0, -math.pi / 2, math.pi / 2, -math.pi / 2, -math.pi / 2, 0.0)
 """Upright arm, tool straight down; wrist 1 = -pi/2 - lift - elbow keeps it down."""
 PAD_TIP_BELOW_TCP = 0.0125
