@@ -189,6 +189,10 @@ def typed(value: Any, hint: Any, where: Where) -> Any:
         return _typed_union(value, typing.get_args(base), where)
     if typing.get_origin(base) is tuple:
         return _typed_tuple(value, typing.get_args(base), where)
+    if isinstance(base, type) and issubclass(base, msgspec.Struct):  # a table inside a table
+        if not isinstance(value, Mapping):
+            raise where.error(f"expected a table, got {shown(value)}")
+        return read_table(base, value, where)
     try:
         result = msgspec.convert(value, base, strict=True)
     except msgspec.ValidationError:
@@ -223,7 +227,11 @@ def _typed_tuple(value: Any, args: tuple[Any, ...], where: Where) -> tuple[Any, 
 
 
 def check_bounds(value: Any, meta: msgspec.Meta, where: Where) -> None:
-    """The one range check: a finite number within ``meta``'s ``ge``/``gt``/``le``."""
+    """The one range check: a finite number within ``meta``'s ``ge``/``gt``/``le``, a text
+    within its ``min_length``/``max_length``."""
+    if isinstance(value, str):
+        _check_length(value, meta, where)
+        return
     if not isinstance(value, int | float) or isinstance(value, bool):
         return
     high = meta.le
@@ -237,6 +245,14 @@ def check_bounds(value: Any, meta: msgspec.Meta, where: Where) -> None:
         raise where.error(f"must be at least {_number(meta.ge)}, got {shown(value)}")
     if high is not None and value > high:
         raise where.error(f"must be at most {_number(high)}, got {shown(value)}")
+
+
+def _check_length(value: str, meta: msgspec.Meta, where: Where) -> None:
+    if meta.min_length is not None and len(value) < meta.min_length:
+        raise where.error("must not be empty" if meta.min_length == 1 else
+                          f"must be at least {meta.min_length} characters, got {len(value)}")
+    if meta.max_length is not None and len(value) > meta.max_length:
+        raise where.error(f"must be at most {meta.max_length} characters, got {len(value)}")
 
 
 def _number(bound: float) -> str:

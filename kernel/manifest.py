@@ -43,7 +43,7 @@ from kernel.settings import (
     PlantKind,
     TrialEnvelope,
 )
-from kernel.shell.link_settings import PolicySettings
+from kernel.shell.link_settings import PolicyProtocol, PolicySettings
 from kernel.tables import read_table
 from skills.phases import Executor, TaskPhase
 
@@ -201,6 +201,7 @@ def _check_keys(table: Mapping[str, Any], known: frozenset[str], where: Where) -
 
 
 def _policy(settings: PolicySettings, where: Where) -> PolicySettings:
+    _policy_protocol(settings, where)
     if settings.latency_p95_ms < settings.latency_median_ms:
         raise where.at("latency_p95_ms").error(
             f"must be at least latency_median_ms ({settings.latency_median_ms:g}), got "
@@ -216,6 +217,19 @@ def _policy(settings: PolicySettings, where: Where) -> PolicySettings:
             "launches would take connections from other hosts (the link has no "
             "authentication). Use 127.0.0.1, or set policy.expose = true to mean it")
     return settings
+
+
+def _policy_protocol(settings: PolicySettings, where: Where) -> None:
+    openpi = settings.protocol is PolicyProtocol.OPENPI
+    if openpi and settings.openpi is None:
+        raise where.at("openpi").error('required with protocol = "openpi" (policy_checkpoint '
+                                       "at least)")
+    if not openpi and settings.openpi is not None:
+        raise where.at("openpi").error('only with protocol = "openpi"')
+    if openpi and settings.launch:
+        raise where.at("launch").error('must be false with protocol = "openpi": warden '
+                                       "launches only its reference server; start the openpi "
+                                       "server yourself and name its port")
 
 
 def is_loopback(host: str) -> bool:

@@ -40,17 +40,20 @@ from kernel.core.effects import ChunkDecision, EndSession, RequestObservation
 from kernel.shell.link_budget import AdmissionPacer
 from kernel.shell.link_connection import SILENCE, Connection, LinkEnd, LinkEnded, closed
 from kernel.shell.link_intake import ChunkIntake
+from kernel.shell.link_openpi import OpenpiLink, OpenpiProtocol
 from kernel.shell.link_protocol import (
     ChunksWaiting,
     Ended,
     Feed,
     HelloDue,
+    LinkProtocol,
     ObservationDue,
     OfferArrived,
     Output,
     Send,
     WardenProtocol,
 )
+from kernel.shell.link_settings import PolicyProtocol
 from kernel.shell.link_types import (
     ClientConfig,
     Gateway,
@@ -74,8 +77,7 @@ class RobotClient:
         self.state = LinkState.IDLE
         self._gateway = gateway
         self._server = server
-        self.link_protocol = WardenProtocol(config.client_id, config.protocol, self.counters,
-                                            config.timing)
+        self.link_protocol = _protocol_for(config, self.counters)
         self._intake = ChunkIntake(self.link_protocol, self.counters, pacer, gateway.now_ns,
                                    self._apply)
         self._wanted = asyncio.Event()
@@ -229,7 +231,7 @@ class RobotClient:
             async with asyncio.timeout(self.config.close_timeout_s):
                 while self._outbox:
                     await link.send_data(self._outbox.popleft())
-                if ended.bye is not None:
+                if ended.bye is not None and self.link_protocol.says_goodbye:
                     bye = wire.Bye(reason=ended.bye, detail=ended.detail[:120])
                     await link.ws.send(wire.encode(bye))
                     self.counters.byes_sent += 1
@@ -341,3 +343,11 @@ class RobotClient:
             self._down_reported = not up
             status = ev.LinkStatus.UP if up else ev.LinkStatus.DOWN
             self._gateway.feed(ev.LinkEvent(t=self._gateway.now_ns(), status=status))
+
+
+def _protocol_for(config: ClientConfig, counters: LinkCounters) -> LinkProtocol:
+    """The protocol object of what the policy server speaks (``[policy] protocol``)."""
+    if config.policy.protocol is PolicyProtocol.OPENPI:
+        return OpenpiProtocol(config.client_id, OpenpiLink.of(config.policy), counters,
+                              config.timing)
+    return WardenProtocol(config.client_id, config.wire_versions, counters, config.timing)

@@ -55,6 +55,7 @@ from kernel.shell.link_protocol import (
     Output,
     Send,
 )
+from kernel.shell.link_settings import PolicySettings
 from kernel.shell.link_types import LinkCounters, LinkTiming, RobotSample
 from kernel.wire import ByeReason
 
@@ -75,6 +76,17 @@ class OpenpiLink(msgspec.Struct, frozen=True, kw_only=True):
     state_key: str = "observation/state"
     prompt_key: str = "prompt"
     prompt: str | None = None
+
+    @classmethod
+    def of(cls, policy: PolicySettings) -> OpenpiLink:
+        """From ``[policy]`` (its ``openpi`` table, its action period and chunk horizon)."""
+        openpi = policy.openpi
+        if openpi is None:
+            raise ValueError('protocol = "openpi" needs [policy.openpi]')
+        return cls(policy_checkpoint=openpi.policy_checkpoint,
+                   action_dt_ns=round(policy.action_dt_ms * 1e6),
+                   max_horizon=policy.chunk_horizon, state_key=openpi.state_key,
+                   prompt_key=openpi.prompt_key, prompt=openpi.prompt)
 
 
 @dataclass(slots=True)

@@ -97,6 +97,8 @@ class LinkProtocol(Protocol):
     """
 
     counters: LinkCounters
+    says_goodbye: bool
+    """Whether the peer's protocol has a goodbye (warden's ``Bye``) the client sends at the end."""
     accepted: bool
     version: int | None
     """The negotiated protocol version of the session (None: none accepted)."""
@@ -149,6 +151,8 @@ class LinkProtocol(Protocol):
 
 class WardenProtocol:
     """Warden's policy protocol (docs/protocol.md), one object for the client's lifetime."""
+
+    says_goodbye = True
 
     def __init__(self, client_id: str, protocol: tuple[int, int], counters: LinkCounters,
                  timing: LinkTiming) -> None:

@@ -9,6 +9,7 @@ field (:mod:`kernel.tables` checks it while the manifest loads; docs/manifest.md
 
 from __future__ import annotations
 
+from enum import StrEnum
 from typing import Annotated
 
 import msgspec
@@ -33,7 +34,34 @@ holds."""
 LatencyMs = Annotated[float, Meta(ge=0.0, le=DURATION_MAX_MS)]
 
 
+class PolicyProtocol(StrEnum):
+    """What the policy server speaks."""
+
+    WARDEN = "warden"
+    """warden's own protocol (docs/protocol.md): the reference server, a server built on
+    :mod:`stubs.policy_server`'s envelope."""
+    OPENPI = "openpi"
+    """An unmodified openpi websocket server (kernel/shell/link_openpi.py)."""
+
+
+class OpenpiSettings(msgspec.Struct, frozen=True, kw_only=True):
+    """``[policy.openpi]``: what the deployment declares about an openpi server, which states
+    none of it itself."""
+
+    policy_checkpoint: Annotated[str, Meta(min_length=1, max_length=128)]
+    """The checkpoint the server runs, as declared (unattested: the ``[[allowlist]]`` entry
+    pairs it with ``openpi-sha256:`` and the digest of the server's metadata frame)."""
+    state_key: Annotated[str, Meta(min_length=1, max_length=128)] = "observation/state"
+    """The observation key of the robot's state (the joints, then the gripper's opening)."""
+    prompt_key: Annotated[str, Meta(min_length=1, max_length=128)] = "prompt"
+    prompt: Annotated[str, Meta(max_length=1024)] | None = None
+    """The task's instruction, sent with every observation (None: no prompt key)."""
+
+
 class PolicySettings(msgspec.Struct, frozen=True, kw_only=True):
+    protocol: PolicyProtocol = PolicyProtocol.WARDEN
+    openpi: OpenpiSettings | None = None
+    """``[policy.openpi]``: required with ``protocol = "openpi"``, refused without it."""
     launch: bool = True
     host: str = "127.0.0.1"
     expose: bool = False

@@ -107,7 +107,8 @@ def _ns(seconds: float) -> int:
 class ClientConfig:
     url: str
     client_id: str = field(default_factory=lambda: f"warden-{uuid.uuid4().hex[:8]}")
-    protocol: tuple[int, int] = wire.PROTOCOL_RANGE
+    wire_versions: tuple[int, int] = wire.PROTOCOL_RANGE
+    """The range of warden's wire protocol versions the hello offers."""
     policy: PolicySettings = field(default_factory=PolicySettings)
     """The manifest's ``[policy]`` as read: what one policy peer may cost (frame and chunk
     rates, requests in flight, timeouts, heartbeats), bounded where it is declared."""

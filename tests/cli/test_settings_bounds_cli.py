@@ -79,6 +79,17 @@ POLICY = [
     ("admissions_per_period = 0", "policy.admissions_per_period: must be at least 1, got 0"),
     ("max_frame_bytes = 0", "policy.max_frame_bytes: must be at least 1, got 0"),
     ("mystery = 1", "policy.mystery: unknown key"),
+    ('protocol = "grpc"', "policy.protocol: unknown value 'grpc' (expected one of warden, "
+     "openpi)"),
+    ('protocol = "openpi"', 'policy.openpi: required with protocol = "openpi"'),
+    ('openpi = { policy_checkpoint = "pi05" }', 'policy.openpi: only with protocol = "openpi"'),
+    ('protocol = "openpi"\nopenpi = { policy_checkpoint = "pi05" }',
+     'policy.launch: must be false with protocol = "openpi"'),
+    ('protocol = "openpi"\nopenpi = 3', "policy.openpi: expected a table, got 3"),
+    ('protocol = "openpi"\nopenpi = { policy_checkpoint = "pi05", colour = 1 }',
+     "policy.openpi.colour: unknown key"),
+    ('protocol = "openpi"\nopenpi = { policy_checkpoint = "" }',
+     "policy.openpi.policy_checkpoint: must not be empty"),
 ]
 
 
