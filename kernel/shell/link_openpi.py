@@ -119,7 +119,7 @@ class OpenpiProtocol:
         self._handshake_by: int | None = None
         self._in_flight: _Request | None = None
         self._reply_by: int | None = None
-        self._waiting: tuple[bytes, _Request] | None = None
+        self._waiting: tuple[np.ndarray, _Request] | None = None
         self._wanted = False
 
     # -- the connection --------------------------------------------------------------------
@@ -203,9 +203,9 @@ class OpenpiProtocol:
             raise OpenpiError("a reply to no request")
         hello = self._hello
         dim = hello.action_dim if hello is not None else 0
-        decode_reply(data, dim, self.link.max_horizon)  # the shape, checked before anything
+        actions = decode_reply(data, dim, self.link.max_horizon).actions  # checked at once
         self._in_flight, self._reply_by = None, None
-        self._waiting = (data, request)
+        self._waiting = (actions, request)
         self.counters.chunks_in += 1
         return [ChunksWaiting()]
 
@@ -282,13 +282,13 @@ class OpenpiProtocol:
         event = self.chunk_event(*waiting, now_ns)
         return [Feed(event), *self._observation_due()]
 
-    def chunk_event(self, data: bytes, request: _Request, now_ns: int) -> ev.ChunkEvent:
-        """The reply as a chunk envelope made from its request, decoded as warden's own chunks
-        are (every field bounded, the actions finite)."""
+    def chunk_event(self, actions: np.ndarray, request: _Request,
+                    now_ns: int) -> ev.ChunkEvent:
+        """The reply's actions in an envelope made from their request, decoded as warden's own
+        chunks are (every field bounded, the actions finite)."""
         hello = self._hello
         if hello is None or self._config_hash is None:
             raise RuntimeError("a chunk before the session was set up")
-        actions = decode_reply(data, hello.action_dim, self.link.max_horizon).actions
         sequence = next(self._sequence)
         body = msgspec.msgpack.encode(WireChunk(
             chunk_id=f"{self.client_id}/openpi-{sequence}", sequence=sequence,

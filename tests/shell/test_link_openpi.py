@@ -8,6 +8,8 @@ import hashlib
 
 import msgspec
 import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from assurance.envelope import Chunk
 from assurance.handshake import HandshakeDecision, HandshakeVerdict, evaluate
@@ -161,3 +163,25 @@ def test_a_rejected_handshake_ends_the_link_and_nothing_is_sent_for_it() -> None
         Ended(None, "handshake rejected: CHECKPOINT_NOT_ALLOWED")]
     assert not protocol.accepted and protocol.counters.handshakes_rejected == 1
     assert OpenpiProtocol.says_goodbye is False
+
+
+_LEAF = (st.none() | st.integers(-(2**63), 2**63 - 1) | st.floats()
+         | st.binary(max_size=64))
+_VALUE = st.recursive(_LEAF, lambda inner: st.lists(inner, max_size=4)
+                      | st.dictionaries(st.binary(max_size=12), inner, max_size=4),
+                      max_leaves=12)
+_MAPS = st.dictionaries(st.sampled_from(["actions", "server_timing", "x"]), _VALUE)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.one_of(st.binary(max_size=4096), st.text(max_size=200),
+                 st.builds(msgspec.msgpack.encode, _MAPS)))
+def test_whatever_the_server_sends_ends_the_link_or_is_one_checked_chunk(
+        data: bytes | str) -> None:
+    protocol = _accepted()
+    _asked(protocol, 10 * MS)
+    outputs = protocol.receive_frame(data, 20 * MS)
+    assert outputs == [ChunksWaiting()] or (len(outputs) == 1 and isinstance(outputs[0], Ended))
+    if outputs == [ChunksWaiting()]:
+        [fed] = protocol.next_chunk(21 * MS)
+        assert isinstance(fed.event.chunk, Chunk)
