@@ -318,8 +318,7 @@ class WardenProtocol:
     def on_decision(self, record: DecisionRecord, queue_epoch: int,
                     now_ns: int) -> list[Output]:
         if isinstance(record, ChunkDecision):
-            self.counters.chunks_admitted += record.admitted
-            self.counters.chunks_refused += not record.admitted
+            self.counters.chunk_decided(record.admitted)
             return []
         return self._decided(record, queue_epoch, now_ns)
 

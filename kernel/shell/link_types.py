@@ -173,6 +173,11 @@ class LinkCounters:
     server_restarts: int = 0
     server_restart_failures: int = 0
 
+    def chunk_decided(self, admitted: bool) -> None:
+        """The core admitted, or refused, a chunk this link carried."""
+        self.chunks_admitted += admitted
+        self.chunks_refused += not admitted
+
     def snapshot(self) -> dict[str, int]:
         return asdict(self)
 
