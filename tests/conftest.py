@@ -1,12 +1,15 @@
-"""Shared test configuration: hypothesis profiles sized for a 2-core CI machine, and the one
-recorded lockstep run the tests that read a run's record share."""
+"""Shared test configuration: hypothesis profiles sized for a 2-core CI machine, each test's
+own logging configuration, and the one recorded lockstep run the tests that read a run's
+record share."""
 
 from __future__ import annotations
 
 import os
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+import structlog
 from hypothesis import HealthCheck, settings
 
 settings.register_profile(
@@ -14,6 +17,17 @@ settings.register_profile(
 )
 settings.register_profile("thorough", deadline=None, max_examples=1000)
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
+
+
+@pytest.fixture(autouse=True)
+def _logging_as_the_suite_began() -> Iterator[None]:
+    """Whatever a test's in-process command configured (``warden check`` logs at WARNING) ends
+    with the test: ``structlog.testing.capture_logs`` swaps the processors, not the level, and
+    a WARNING level left behind by one test hid the INFO lines a later test asserted
+    (tests/safety/test_canopen_watch.py's EMCY test failed so in the suite, never alone)."""
+    saved = structlog.get_config()
+    yield
+    structlog.configure(**saved)
 
 
 @pytest.fixture(scope="session")
