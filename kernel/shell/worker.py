@@ -10,10 +10,8 @@ loops hold the GIL, so a thread would stall the loop instead.
 
 A chunk waits for its job before it can be admitted, so the job's latency is admission's:
 when the loop runs at SCHED_FIFO, the worker runs at a real-time priority below it
-(:data:`BELOW_LOOP` under the loop's) once it says it is ready: its start-up, which builds the
-configuration, stays at the ordinary priority (raised at once, that start-up held a core for
-the first planned move's check, and the RTDE emulator, starved, stopped the arm on its
-watchdog). At the ordinary priority, behind a policy server
+(:data:`BELOW_LOOP` under the loop's, from its first job on; its start-up, which builds the
+configuration, stays at the ordinary priority). At the ordinary priority, behind a policy server
 or an emulator on a two-core PC, a clearance check of about 1 ms of CPU took 8 to 10 ms to
 come back at the median and 15 to 18 ms at p90 on the RTDE cell; at priority 40, 4.1 to 4.3 ms
 and 5.5 ms, with the loop's deadline misses within the same run-to-run spread. Real-time
@@ -57,14 +55,7 @@ log = structlog.get_logger("warden.jobs")
 _MAX_FRAME = 16 * 1024 * 1024
 _PARENT_PID = "WARDEN_PARENT_PID"
 _job_encoder = msgspec.msgpack.Encoder()
-
-
-class WorkerReady(msgspec.Struct, frozen=True, tag_field="job", tag="ready"):
-    """The worker's first frame: its configuration is built, jobs are answered from now on.
-    (Tagged like a result, ``job``, so that one decoder reads every frame.)"""
-
-
-_result_decoder = msgspec.msgpack.Decoder(JobResult | WorkerReady)
+_result_decoder = msgspec.msgpack.Decoder(JobResult)
 
 
 class InlineJobs:
@@ -85,8 +76,8 @@ class InlineJobs:
 
 
 class JobWorker:
-    """``priority``: the worker's SCHED_FIFO priority once it is ready (None: the ordinary
-    priority); :attr:`scheduling` says what took effect."""
+    """``priority``: the worker's SCHED_FIFO priority from its first job on (None: the
+    ordinary priority); :attr:`scheduling` says what took effect."""
 
     def __init__(self, gateway: CoreGateway, sections: ScenarioSections, source: str,
                  max_in_flight: int = 8, priority: int | None = None) -> None:
@@ -94,6 +85,7 @@ class JobWorker:
         self.max_in_flight = max_in_flight
         self.priority = priority
         self.scheduling = "ordinary priority"
+        self._prioritised = priority is None
         self.in_flight: set[int] = set()
         self.done = self.failed = 0
         self._init = json.dumps({"sections": sections.document(), "source": source}).encode()
@@ -159,6 +151,8 @@ class JobWorker:
         if len(self.in_flight) >= self.max_in_flight:
             self._fail(job, f"{self.max_in_flight} jobs already in flight")
             return
+        if not self._prioritised:
+            self._raise_priority()
         self.in_flight.add(job.job_id)
         try:
             self._send(_job_encoder.encode(job))
@@ -167,8 +161,9 @@ class JobWorker:
             self._fail(job, "the job worker is not running")
 
     def _raise_priority(self) -> None:
-        """When the worker is ready: its start-up (imports, the configuration) ran at the
-        ordinary priority, its jobs run at :attr:`priority`."""
+        """Once, before the first job: the worker's start-up (imports, the configuration)
+        stays at the ordinary priority, its jobs run at :attr:`priority`."""
+        self._prioritised = True
         if self._process is None or self.priority is None:
             return
         try:
@@ -201,10 +196,7 @@ class JobWorker:
             del self._buffer[:_HEADER.size + size]
             self._deliver(_result_decoder.decode(body))
 
-    def _deliver(self, result: JobResult | WorkerReady) -> None:
-        if isinstance(result, WorkerReady):
-            self._raise_priority()
-            return
+    def _deliver(self, result: JobResult) -> None:
         self.in_flight.discard(result.job_id)
         self.done += 1
         self.gateway.feed(ComputedEvent(t=self.gateway.now_ns(), result=result))
@@ -255,11 +247,6 @@ def _read_frame(stream: Any) -> bytes | None:
     return body if len(body) == size else None
 
 
-def _write_frame(stream: Any, body: bytes) -> None:
-    stream.write(_HEADER.pack(len(body)) + body)
-    stream.flush()
-
-
 def main() -> int:
     """The worker: build the configuration, then answer jobs until stdin closes."""
     _die_with_parent()
@@ -274,7 +261,6 @@ def main() -> int:
     config = build_config(setup["sections"], Where(setup["source"], ""))
     decoder = msgspec.msgpack.Decoder(Job)
     encoder = msgspec.msgpack.Encoder()
-    _write_frame(stdout, encoder.encode(WorkerReady()))
     while (frame := _read_frame(stdin)) is not None:
         job = decoder.decode(frame)
         try:
@@ -282,7 +268,9 @@ def main() -> int:
                                         config.collision)
         except ValueError as error:
             result = JobFailed(job_id=job.job_id, detail=str(error))
-        _write_frame(stdout, encoder.encode(result))
+        body = encoder.encode(result)
+        stdout.write(_HEADER.pack(len(body)) + body)
+        stdout.flush()
     return 0
 
 

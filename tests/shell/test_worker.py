@@ -140,9 +140,8 @@ async def test_a_dead_worker_fails_its_jobs_and_ends_the_run(cartesian: Manifest
 async def test_the_worker_starts_at_the_ordinary_priority_and_runs_its_jobs_at_its_own(
         cartesian: Manifest) -> None:
     """A chunk waits for its job: on a live run the worker runs its jobs at a real-time
-    priority under the loop's, once it says it is ready (its start-up, which builds the
-    configuration, stays ordinary: nothing raises it before :meth:`JobWorker.run` reads its
-    first frame). Priority 1 here, the lowest, as this test process is no real-time loop."""
+    priority under the loop's (start-up, which builds the configuration, stays ordinary).
+    Priority 1 here, the lowest, as this test process is no real-time loop."""
     gateway = _Gateway()
     worker = JobWorker(gateway, cartesian.sections, str(cartesian.path),  # type: ignore[arg-type]
                        priority=1)
@@ -152,8 +151,8 @@ async def test_the_worker_starts_at_the_ordinary_priority_and_runs_its_jobs_at_i
     try:
         starting = os.sched_getscheduler(process.pid)
         gateway.ask(_map_job(cartesian, 1))
-        await _until(gateway, 1, worker)  # its ready frame comes before the job's result
         running = os.sched_getscheduler(process.pid), os.sched_getparam(process.pid)
+        await _until(gateway, 1, worker)
     finally:
         worker.close()
     assert starting == os.SCHED_OTHER and worker.scheduling != "ordinary priority"
