@@ -42,7 +42,7 @@ from kernel.shell.realtime import log_report, restore, try_realtime
 from kernel.shell.supervisor import RestartPolicy, Supervisor, describe, failure_fields
 from kernel.shell.systemd import ServiceNotifier
 from kernel.shell.timer import MonotonicClock, PeriodicTimer, Tick
-from kernel.shell.worker import BELOW_LOOP, JobWorker
+from kernel.shell.worker import JobWorker
 
 log = structlog.get_logger("warden.run")
 EARLY_WAKE_NS = 200_000
@@ -77,10 +77,9 @@ async def _run_live(manifest: Manifest, journal_dir: Path | None,
         close_record(context)
         raise
     server: _Launched | None = None
+    worker = JobWorker(context.cell.gateway, context.sections, source_of(manifest))
     realtime = try_realtime()
     log_report(log, realtime)
-    worker = JobWorker(context.cell.gateway, context.sections, source_of(manifest),
-                       priority=realtime.priority - BELOW_LOOP if realtime.priority else None)
     service = ServiceNotifier.from_env()
     failures: list[str] = []
     loop = _Loop(context, progress, hook, service, realtime.summary(), stop)
@@ -122,8 +121,7 @@ async def _run_live(manifest: Manifest, journal_dir: Path | None,
                           or context.cell.controller.record_failed),
         "task_failures": failures, "loop": {"realtime": realtime.summary()},
         "link": {k: v for k, v in client.counters.snapshot().items() if v} if client else {},
-        "jobs": {"done": worker.done, "failed": worker.failed,
-                 "scheduling": worker.scheduling},
+        "jobs": {"done": worker.done, "failed": worker.failed},
         "operator": _operator_summary(operator), "safety": loop.heartbeat.summary(),
         "service": {"notify": service.enabled, "sent": service.stats.sent,
                     "failed": service.stats.failed},

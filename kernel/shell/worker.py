@@ -8,15 +8,6 @@ configuration from the same manifest sections, and feeds the result back to the 
 needs no worker. The child runs on the other core: pinocchio's IK and the projection's Python
 loops hold the GIL, so a thread would stall the loop instead.
 
-A chunk waits for its job before it can be admitted, so the job's latency is admission's:
-when the loop runs at SCHED_FIFO, the worker runs at a real-time priority below it
-(:data:`BELOW_LOOP` under the loop's, from its first job on; its start-up, which builds the
-configuration, stays at the ordinary priority). At the ordinary priority, behind a policy server
-or an emulator on a two-core PC, a clearance check of about 1 ms of CPU took 8 to 10 ms to
-come back at the median and 15 to 18 ms at p90 on the RTDE cell; at priority 40, 4.1 to 4.3 ms
-and 5.5 ms, with the loop's deadline misses within the same run-to-run spread. Real-time
-throttling (``kernel.sched_rt_runtime_us``) still bounds what a runaway job could take.
-
 Frames on the pipes are a 4-byte big-endian length and a MessagePack body. At most
 ``max_in_flight`` jobs are outstanding: beyond that, and when the worker has died, a job fails
 at once (its chunk is refused, never admitted unchecked). The child exits when its stdin
@@ -37,7 +28,6 @@ import sys
 from typing import Any
 
 import msgspec
-import structlog
 
 from kernel.core.effects import Compute
 from kernel.core.events import ComputedEvent
@@ -46,12 +36,7 @@ from kernel.sections import ScenarioSections
 from kernel.shell.gateway import CoreGateway
 from kernel.shell.realtime import children_at_ordinary_priority
 
-BELOW_LOOP = 10
-"""The worker's SCHED_FIFO priority is the loop's less this: under the loop and the device
-threads (the loop's priority) and under the safety monitor (above the loop), above every
-process at the ordinary priority."""
 _HEADER = struct.Struct(">I")
-log = structlog.get_logger("warden.jobs")
 _MAX_FRAME = 16 * 1024 * 1024
 _PARENT_PID = "WARDEN_PARENT_PID"
 _job_encoder = msgspec.msgpack.Encoder()
@@ -76,16 +61,10 @@ class InlineJobs:
 
 
 class JobWorker:
-    """``priority``: the worker's SCHED_FIFO priority from its first job on (None: the
-    ordinary priority); :attr:`scheduling` says what took effect."""
-
     def __init__(self, gateway: CoreGateway, sections: ScenarioSections, source: str,
-                 max_in_flight: int = 8, priority: int | None = None) -> None:
+                 max_in_flight: int = 8) -> None:
         self.gateway = gateway
         self.max_in_flight = max_in_flight
-        self.priority = priority
-        self.scheduling = "ordinary priority"
-        self._prioritised = priority is None
         self.in_flight: set[int] = set()
         self.done = self.failed = 0
         self._init = json.dumps({"sections": sections.document(), "source": source}).encode()
@@ -151,29 +130,12 @@ class JobWorker:
         if len(self.in_flight) >= self.max_in_flight:
             self._fail(job, f"{self.max_in_flight} jobs already in flight")
             return
-        if not self._prioritised:
-            self._raise_priority()
         self.in_flight.add(job.job_id)
         try:
             self._send(_job_encoder.encode(job))
         except OSError:
             self.in_flight.discard(job.job_id)
             self._fail(job, "the job worker is not running")
-
-    def _raise_priority(self) -> None:
-        """Once, before the first job: the worker's start-up (imports, the configuration)
-        stays at the ordinary priority, its jobs run at :attr:`priority`."""
-        self._prioritised = True
-        if self._process is None or self.priority is None:
-            return
-        try:
-            os.sched_setscheduler(self._process.pid, os.SCHED_FIFO,
-                                  os.sched_param(self.priority))
-        except OSError as error:  # not permitted, or the worker just died (its pipe says so)
-            self.scheduling = f"ordinary priority: SCHED_FIFO refused ({error.strerror})"
-            log.warning("job worker scheduling", in_effect=self.scheduling)
-            return
-        self.scheduling = f"SCHED_FIFO priority {self.priority}"
 
     def _send(self, body: bytes) -> None:
         stdin = self._process.stdin if self._process is not None else None

@@ -135,31 +135,3 @@ async def test_a_dead_worker_fails_its_jobs_and_ends_the_run(cartesian: Manifest
     assert [r.job_id for r in results] == [7, 8]
     assert all(isinstance(r, JobFailed) for r in results)
     assert worker.in_flight == set() and worker.done == 0
-
-
-async def test_the_worker_starts_at_the_ordinary_priority_and_runs_its_jobs_at_its_own(
-        cartesian: Manifest) -> None:
-    """A chunk waits for its job: on a live run the worker runs its jobs at a real-time
-    priority under the loop's (start-up, which builds the configuration, stays ordinary).
-    Priority 1 here, the lowest, as this test process is no real-time loop."""
-    gateway = _Gateway()
-    worker = JobWorker(gateway, cartesian.sections, str(cartesian.path),  # type: ignore[arg-type]
-                       priority=1)
-    worker.start()
-    process = worker._process  # the child whose scheduling this test reads
-    assert process is not None
-    try:
-        starting = os.sched_getscheduler(process.pid)
-        gateway.ask(_map_job(cartesian, 1))
-        running = os.sched_getscheduler(process.pid), os.sched_getparam(process.pid)
-        await _until(gateway, 1, worker)
-    finally:
-        worker.close()
-    assert starting == os.SCHED_OTHER and worker.scheduling != "ordinary priority"
-    if worker.scheduling.startswith("SCHED_FIFO"):
-        assert running[0] == os.SCHED_FIFO and running[1].sched_priority == 1
-        assert worker.scheduling == "SCHED_FIFO priority 1"
-    else:  # not permitted here (no CAP_SYS_NICE, no RLIMIT_RTPRIO): said, and the job runs
-        assert running[0] == os.SCHED_OTHER
-        assert worker.scheduling.startswith("ordinary priority: SCHED_FIFO refused")
-    assert isinstance(gateway.results()[0], MapResult)
