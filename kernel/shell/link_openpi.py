@@ -261,8 +261,6 @@ class OpenpiProtocol:
                                    tuple(float(v) for v in sample.q))
         self._reply_by = now_ns + self.timing.request_timeout_ns
         self.counters.observations_sent += 1
-        self.counters.frames_out += 1
-        self.counters.bytes_out += len(data)
         return [Feed(ev.ObservationEvent(t=now_ns, observation_id=observation_id)), Send(data)]
 
     @property

@@ -61,8 +61,8 @@ def test_an_unmodified_openpi_server_drives_the_cell_through_every_gate(tmp_path
     directory = run_dir(tmp_path / "runs")
     summary = json.loads((directory / "summary.json").read_text())
     link = summary["link"]
-    assert link["handshakes_accepted"] >= 1 and link["protocol_violations"] == 0
-    assert link["chunks_admitted"] >= 3, link
+    assert link["handshakes_accepted"] >= 1 and "protocol_violations" not in link, link
+    assert link["chunks_admitted"] >= 3 and link["frames_out"] == link["observations_sent"], link
     lines = [json.loads(line) for line in (directory / "decisions.jsonl").read_text().splitlines()]
     handshake = next(line for line in lines if line["kind"] == "handshake")
     assert handshake["decision"] == "ACCEPT"
