@@ -28,6 +28,7 @@ from kernel.robot_model import digest
 from kernel.signing import sign
 from stubs.ur_controller.launch import EmulatedController
 from tests.cell.harness import MANIFESTS
+from tests.cell.operator_at_hand import control_of, emulator_at_rest, operator_at_hand
 from tests.safety.support import (
     FORCE_LIMIT_N,
     Monitor,
@@ -324,8 +325,11 @@ def test_a_confirmed_trial_runs_inside_its_envelope(
     with watched_trial(manifest, tmp_path) as (monitor, trial):
         answer = trial.confirm()
         assert answer["ok"] and answer["uid"] == os.getuid(), answer
-        code, summary, err = trial.finish()
+        with operator_at_hand(tmp_path / "operator.sock",
+                              emulator_at_rest(control_of(emulator))) as recovered:
+            code, summary, err = trial.finish()
         assert monitor.status()["stops"] == 0
+    print(f"recovered from: {recovered or 'no fallback'}")
     assert code == 0, err[-3000:]
     assert summary["cycles"]["verified"] == 1
     assert summary["trial"]["signer"] == TEST_KEY_ID

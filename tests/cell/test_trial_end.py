@@ -21,6 +21,7 @@ from kernel.app.trial import TrialBound, cycle_count, load_trial, verdict
 from kernel.cli_operator import send
 from kernel.signing import sign
 from stubs.ur_controller.launch import EmulatedController
+from tests.cell.operator_at_hand import operator_at_hand
 from tests.cell.test_trial import TEST_KEYS, TEST_SIGNER, TRIAL, _ur_trial
 from tests.cell.test_trial_envelope import _at_rest, _AtTerminal, _lockstep, _signed_sim_trial
 from tests.safety.support import Monitor, wait_for
@@ -112,8 +113,10 @@ def test_the_walk_through_at_a_terminal_interrupted_in_cycle_2_of_3(
         err: list[str] = []  # read as it comes: a full pipe would block warden's log lines
         drain = threading.Thread(target=lambda: err.extend(process.stderr or ()))
         drain.start()
-        wait_for(lambda: process.poll() is not None or _cycle(sock) >= 2,
-                 "cycle 2 under way", timeout_s=120)
+        with operator_at_hand(sock, lambda: _at_rest(kinematic_emulator)) as recovered:
+            wait_for(lambda: process.poll() is not None or _cycle(sock) >= 2,
+                     "cycle 2 under way", timeout_s=120)
+        print(f"recovered from: {recovered or 'no fallback'}")
         process.send_signal(signal.SIGINT)
         out = process.stdout.read() if process.stdout else ""
         code = process.wait(timeout=120)

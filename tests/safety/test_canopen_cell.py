@@ -13,10 +13,8 @@ over 200 ms here at start-up, which the monitor rightly stops.
 
 from __future__ import annotations
 
-import contextlib
 import os
 import signal
-import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -24,11 +22,10 @@ from typing import Any
 
 import pytest
 
-from kernel.cli_operator import send
 from kernel.safety.canopen import CiA402Watch
 from kernel.safety.view import read_view
-from stubs.cell.operator import RECOVERABLE
 from stubs.fault_control import inject
+from tests.cell.operator_at_hand import emulator_at_rest, operator_at_hand
 from tests.cell.test_kill_warden import emulator_for
 from tests.safety.support import (
     Monitor,
@@ -104,7 +101,7 @@ def test_the_listener_sees_what_warden_moves_and_a_whole_cycle_trips_nothing(
         monitor.wait_connected()
         listener.connect()
         warden = Warden(manifest, tmp_path)
-        with _operator(tmp_path, control) as recovered:
+        with operator_at_hand(tmp_path / "operator.sock", emulator_at_rest(control)) as recovered:
             exact, seen, largest, fastest = _compare_while_moving(listener, control, warden)
             print(f"listener vs ground truth while moving (up to {fastest:.2f} rad/s): {exact} "
                   f"of {seen} equal to {EXACT_RAD:g} rad, largest difference {largest:.4f} rad")
@@ -124,34 +121,6 @@ def test_the_listener_sees_what_warden_moves_and_a_whole_cycle_trips_nothing(
     assert code == 0, warden.log_path.read_text()[-3000:]  # verified, watched every period
     assert status["stops"] == 0 and not monitor.events("safety stop")
     assert status["ok"] and status["connected"]
-
-
-@contextlib.contextmanager
-def _operator(directory: Path, control: Address) -> Iterator[list[str]]:
-    """A human at the operator socket doing what the simulated operator of a launched cell does
-    (warden refuses that stand-in with a real device): under a recoverable fallback, once the
-    arm has come to rest, accept recovery. A policy chunk refused on this loaded machine then
-    costs a retreat, not the cycle. Yields the fallbacks recovered from."""
-    recovered: list[str] = []
-    done = threading.Event()
-    path = str(directory / "operator.sock")
-
-    def accept() -> None:
-        while not done.wait(0.25):
-            with contextlib.suppress(OSError, ValueError):
-                mode = send(path, "status", 1.0).get("mode")
-                at_rest = max(map(abs, _truth(control)["qd"])) < AT_REST
-                if mode in RECOVERABLE and at_rest and send(path, "accept-recovery", 1.0).get(
-                        "ok"):
-                    recovered.append(str(mode))
-
-    thread = threading.Thread(target=accept, daemon=True)
-    thread.start()
-    try:
-        yield recovered
-    finally:
-        done.set()
-        thread.join()
 
 
 def _compare_while_moving(listener: CiA402Watch, control: Address,
