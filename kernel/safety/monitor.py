@@ -45,6 +45,8 @@ class Stopping(Protocol):
     def is_set(self) -> bool: ...
 
     def wait(self, timeout: float) -> bool: ...
+
+
 PROBE_EVERY_NS = 1_000_000_000
 RECONNECT_EVERY_NS = 1_000_000_000
 WATCHING_SLACK_NS = 50_000_000

@@ -107,7 +107,5 @@ def _announce(args: argparse.Namespace, control_address: tuple[str, int]) -> Non
     print("READY " + json.dumps(ready), flush=True)
 
 
-
-
 if __name__ == "__main__":
     sys.exit(main())
