@@ -23,7 +23,9 @@ offset and its bounding radius: a constant of the model, computed once). On the 
 joint-space segment from ``a`` to ``b`` a pair's distance is therefore at least
 ``(d(a) + d(b) − s) / 2`` with ``s`` the sum of both geoms' travel: the check asks that bound,
 and ``d(b)`` itself, to keep the pair's clearance. It is conservative (it never passes a
-segment that comes closer than the clearance), and it tightens as the steps get shorter.
+segment that comes closer than the clearance), and it tightens as the steps get shorter: a
+segment whose bound falls short while both ends keep the clearance is halved at its midpoint
+(measured) and each half bounded again, within a fixed budget of distance queries per check.
 
 Pure: no I/O, no clock. One :class:`CellCollision` owns Pinocchio data buffers: one instance
 per thread.
@@ -38,16 +40,8 @@ import numpy as np
 import pinocchio as pin
 
 from assurance.kinematics import ArmKinematics
-from assurance.solids import (
-    Shape,
-    SolidSpec,
-    arm_geometry,
-    bounding_radius,
-    coal_shape,
-    joint_axis,
-    joint_reach,
-    placement,
-)
+from assurance.reach import CellGeometry, RobotSolid, reach_about_axes, with_part
+from assurance.solids import Shape, SolidSpec, arm_geometry
 
 
 @dataclass(frozen=True, slots=True)
@@ -84,10 +78,10 @@ class Clearance:
     """The clearance the pair must keep, m."""
 
 
-class _Robot(StrEnum):
-    LINK = "link"
-    TOOL = "tool"
-    PART = "part"
+SPLIT_BUDGET = 256
+"""Distance queries one check may spend halving motions whose bound falls short."""
+SPLIT_STEP = 1e-4
+"""rad (m for a prismatic joint): a motion no joint of which turns farther is not halved."""
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -119,8 +113,10 @@ class CellCollision:
         self.model = kinematics.model
         self._data = self.model.createData()
         self._tcp = self.model.getFrameId(kinematics.config.tcp_frame)
-        self._held = _with_part(self.model, arm, settings, self._tcp, held=True)
-        self._free = _with_part(self.model, arm, settings, self._tcp, held=False)
+        self._held = with_part(self.model, arm, settings.part, settings.solids, self._tcp,
+                               held=True)
+        self._free = with_part(self.model, arm, settings.part, settings.solids, self._tcp,
+                               held=False)
         self._cache: dict[tuple[str, bool], _Pairs] = {}
 
     @property
@@ -177,17 +173,48 @@ class CellCollision:
             if i < rows.shape[0]:
                 joints[i] = self._joint_placements(geometry)
         radius = np.zeros((rows.shape[0], *geometry.radii.shape))
-        radius[:, movers] = _reach_about_axes(geometry, movers, joints)
+        radius[:, movers] = reach_about_axes(geometry, movers, joints)
         swept = _travel(np.abs(np.diff(qs, axis=0)), radius, geometry.radii, pairs)[:, near]
         bound = np.minimum(dist[1:], 0.5 * (dist[:-1] + dist[1:] - swept))
-        short = bound < pairs.margin[near]
-        if not short.any():
-            return None
-        action, column = np.argwhere(short)[0].tolist()
-        pair = int(near[column])
-        return Clearance(action=action, pair=pairs.names[pair],
-                         distance=float(dist[action + 1, column]),
-                         bound=float(bound[action, column]), needed=float(pairs.margin[pair]))
+        splits = _Splits(pairs, geometry)
+        for action, column in np.argwhere(bound < pairs.margin[near]).tolist():
+            pair = int(near[column])
+            lowest = self._split(qs[action], joints[action], qs[action + 1],
+                                 (float(dist[action, column]), float(dist[action + 1, column])),
+                                 pair, splits)
+            if lowest < pairs.margin[pair]:
+                return Clearance(action=action, pair=pairs.names[pair],
+                                 distance=float(dist[action + 1, column]), bound=lowest,
+                                 needed=float(pairs.margin[pair]))
+        return None
+
+    def _split(self, a: np.ndarray, placed: np.ndarray, b: np.ndarray,
+               ends: tuple[float, float], pair: int, splits: _Splits) -> float:
+        """The lowest bound on ``pair``'s distance over the motion from ``a`` to ``b`` that
+        halving it can prove: the motion's own bound, or when that falls under the pair's
+        clearance, its two halves' (each from the distance at the midpoint, so the bound
+        tightens as the halves get shorter), down to steps of ``SPLIT_STEP`` and within
+        ``SPLIT_BUDGET`` distance queries per check. A long step (the first one out of a
+        hold the queue ran dry into) passes a pair it keeps clear of, which the one bound
+        over the whole step could not show; one that comes closer still fails, at the
+        midpoint that does. ``placed``: each joint's placement at ``a``; ``ends``: the
+        pair's distances at ``a`` and ``b``."""
+        lowest = min(ends[1], 0.5 * (sum(ends) - splits.swept(a, placed, b, pair)))
+        needed = splits.pairs.margin[pair]
+        if lowest >= needed or ends[1] < needed or not splits.take(np.abs(b - a).max()):
+            return lowest
+        middle = 0.5 * (a + b)
+        pin.updateGeometryPlacements(self.model, self._data, splits.pairs.model,
+                                     splits.pairs.data, middle)
+        at_middle = pin.computeDistance(splits.pairs.model, splits.pairs.data, pair).min_distance
+        if at_middle < needed:
+            return at_middle
+        placed_middle = self._joint_placements(splits.geometry)
+        first = self._split(a, placed, middle, (ends[0], at_middle), pair, splits)
+        if first < needed:
+            return first
+        return min(first, self._split(middle, placed_middle, b, (at_middle, ends[1]), pair,
+                                      splits))
 
     def _near(self, qs: np.ndarray, pairs: _Pairs, held: bool) -> np.ndarray:
         """Per pair, whether it may come within its clearance along the path ``qs``, by one
@@ -200,11 +227,11 @@ class CellCollision:
         distance = self._distance_row(qs[0], pairs)
         path = np.abs(np.diff(qs, axis=0)).sum(axis=0)[None, :]  # (1, dof)
         every = np.arange(len(geometry.roles))
-        radius = _reach_about_axes(geometry, every, self._joint_placements(geometry)[None])
+        radius = reach_about_axes(geometry, every, self._joint_placements(geometry)[None])
         travel = _travel(path, radius, geometry.radii, pairs)[0]
         return distance - travel < pairs.margin
 
-    def _joint_placements(self, geometry: _Geometry) -> np.ndarray:
+    def _joint_placements(self, geometry: CellGeometry) -> np.ndarray:
         """(dof, 4, 4): each joint's placement at the configuration just computed."""
         placed = self._data.oMi  # each attribute read builds a proxy: once
         return np.array([placed[joint].homogeneous for joint in geometry.joint_list])
@@ -221,22 +248,30 @@ class CellCollision:
         return self._cache[key]
 
 
-def _reach_about_axes(geometry: _Geometry, geoms: np.ndarray, joints: np.ndarray) -> np.ndarray:
-    """(configurations, len(geoms), dof): how far each of ``geoms`` reaches from each joint's
-    axis (its centre's distance from the axis plus its bounding radius; 1 per metre for a
-    prismatic joint), where the joint moves it (else 0). ``joints``: (configurations, dof, 4,
-    4), each joint's placement in the world."""
-    rotations, origins = joints[:, :, :3, :3], joints[:, :, :3, 3]
-    axes = np.einsum("rjab,jb->rja", rotations, geometry.axis_array)
-    column = geometry.parent_column[geoms]
-    carried = np.einsum("rgab,gb->rga", rotations[:, column], geometry.local_centres[geoms])
-    centres = np.where((column >= 0)[None, :, None], carried + origins[:, column],
-                       geometry.local_centres[geoms][None])
-    arm = centres[:, :, None, :] - origins[:, None, :, :]  # (r, geoms, dof, 3)
-    radius = np.linalg.norm(np.cross(axes[:, None, :, :], arm), axis=-1)
-    radius[..., geometry.prismatic] = 1.0
-    radii = geometry.radii[geoms]
-    return np.where(radii[None] > 0.0, radius + geometry.rho[geoms, None][None], 0.0)
+class _Splits:
+    """What halving the motions of one check needs: its pairs and geometry, and how many
+    distance queries it may still spend."""
+
+    def __init__(self, pairs: _Pairs, geometry: CellGeometry) -> None:
+        self.pairs = pairs
+        self.geometry = geometry
+        self.left = SPLIT_BUDGET
+
+    def take(self, step: float) -> bool:
+        """Spend one query on a motion whose largest joint step is ``step``, if any are left
+        and the motion is worth halving."""
+        if self.left <= 0 or step <= SPLIT_STEP:
+            return False
+        self.left -= 1
+        return True
+
+    def swept(self, a: np.ndarray, placed: np.ndarray, b: np.ndarray, pair: int) -> float:
+        """How far ``pair``'s moving solid can travel relative to the other from ``a`` to
+        ``b`` (:func:`_travel`); ``placed``: each joint's placement at ``a``."""
+        mover = self.pairs.mover[pair : pair + 1]
+        radius = np.zeros((1, *self.geometry.radii.shape))
+        radius[:, mover] = reach_about_axes(self.geometry, mover, placed[None])
+        return float(_travel(np.abs(b - a)[None], radius, self.geometry.radii, self.pairs)[0, pair])
 
 
 def _path(start: np.ndarray, rows: np.ndarray) -> np.ndarray:
@@ -259,76 +294,9 @@ def _travel(step: np.ndarray, radius: np.ndarray, bound: np.ndarray,
     return np.einsum("aj,apj->ap", step, moving)
 
 
-@dataclass(frozen=True, slots=True, eq=False)
-class _Geometry:
-    model: pin.GeometryModel
-    roles: tuple[_Robot | SolidSpec, ...]
-    """Per geom: what it is on the robot, or the world's solid it is."""
-    joints: tuple[int, ...]
-    radii: np.ndarray
-    """(geoms, dof): how far a point of geom g can be from joint j's origin (0: not moved by j)."""
-    joint_of_q: np.ndarray
-    """Per configuration coordinate, the joint it belongs to."""
-    axes: tuple[np.ndarray | None, ...]
-    """Per configuration coordinate, its joint's axis in the joint's frame (None: prismatic)."""
-    rho: np.ndarray
-    """Per geom, its bounding radius about its placement's origin."""
-    axis_array: np.ndarray
-    """(dof, 3): the axes, a prismatic joint's as zeros."""
-    prismatic: np.ndarray
-    """Per configuration coordinate, whether its joint is prismatic."""
-    joint_list: tuple[int, ...]
-    """Per configuration coordinate, its joint (``joint_of_q`` as ints)."""
-    parent_column: np.ndarray
-    """Per geom, the configuration coordinate of the joint it is fixed to (-1: the base)."""
-    local_centres: np.ndarray
-    """(geoms, 3): each geom's centre in its joint's frame (the world's, on the base)."""
-
-
-def _with_part(model: pin.Model, arm: pin.GeometryModel, settings: CollisionSettings,
-               tcp: int, held: bool) -> _Geometry:
-    geometry = arm.copy()
-    roles: list[_Robot | SolidSpec] = [_role(model, g, tcp) for g in arm.geometryObjects]
-    if held and settings.part is not None:
-        frame = model.frames[tcp]
-        geometry.addGeometryObject(pin.GeometryObject(
-            "part", frame.parentJoint, tcp, frame.placement * placement(settings.part),
-            coal_shape(settings.part)))
-        roles.append(_Robot.PART)
-    for solid in settings.solids:
-        geometry.addGeometryObject(pin.GeometryObject(
-            solid.name, 0, 0, placement(solid), coal_shape(solid)))
-        roles.append(solid)
-    joints = tuple(int(g.parentJoint) for g in geometry.geometryObjects)
-    joint_of_q = np.zeros(model.nq, dtype=int)
-    for joint in range(1, model.njoints):
-        joint_of_q[model.joints[joint].idx_q] = joint
-    axes = tuple(joint_axis(model.joints[joint]) for joint in joint_of_q.tolist())
-    rho = np.array([bounding_radius(g.geometry) for g in geometry.geometryObjects])
-    prismatic = np.array([axis is None for axis in axes])
-    axis_array = np.array([np.zeros(3) if axis is None else axis for axis in axes])
-    column = {joint: q for q, joint in reversed(list(enumerate(joint_of_q.tolist())))}
-    parent_column = np.array([column.get(joint, -1) for joint in joints])
-    local_centres = np.array([g.placement.translation for g in geometry.geometryObjects])
-    return _Geometry(geometry, tuple(roles), joints, joint_reach(model, geometry), joint_of_q, axes,
-                     rho, axis_array, prismatic, tuple(joint_of_q.tolist()), parent_column,
-                     local_centres)
-
-
-def _role(model: pin.Model, geom: pin.GeometryObject, tcp_frame: int) -> _Robot:
-    """A geom on the TCP's joint that hangs off another body than that joint's own link (the
-    gripper and its fingers) is the tool; every other robot geom is a link."""
-    joint = model.frames[tcp_frame].parentJoint
-    if geom.parentJoint != joint:
-        return _Robot.LINK
-    link = next(i for i, f in enumerate(model.frames)
-                if f.parentJoint == joint and f.type == pin.FrameType.BODY)
-    return _Robot.LINK if geom.parentFrame == link else _Robot.TOOL
-
-
-def _pair_kind(a: _Robot | SolidSpec, b: _Robot | SolidSpec, joint_a: int, joint_b: int,
+def _pair_kind(a: RobotSolid | SolidSpec, b: RobotSolid | SolidSpec, joint_a: int, joint_b: int,
                settings: CollisionSettings) -> PairKind | None:
-    robot_a, robot_b = isinstance(a, _Robot), isinstance(b, _Robot)
+    robot_a, robot_b = isinstance(a, RobotSolid), isinstance(b, RobotSolid)
     if robot_a and robot_b:
         if not settings.self_collision or abs(joint_a - joint_b) < 2:
             return None
@@ -342,7 +310,7 @@ def _pair_kind(a: _Robot | SolidSpec, b: _Robot | SolidSpec, joint_a: int, joint
     return PairKind.KEEP_OUT if solid.keep_out else PairKind.OBSTACLE
 
 
-def _select(geometry: _Geometry, settings: CollisionSettings, phase: str) -> _Pairs:
+def _select(geometry: CellGeometry, settings: CollisionSettings, phase: str) -> _Pairs:
     model = geometry.model.copy()
     model.removeAllCollisionPairs()
     roles, joints, objects = geometry.roles, geometry.joints, model.geometryObjects
@@ -365,7 +333,7 @@ def _select(geometry: _Geometry, settings: CollisionSettings, phase: str) -> _Pa
                   tuple(names))
 
 
-def _mover(geometry: _Geometry, a: int, b: int) -> tuple[int, np.ndarray]:
+def _mover(geometry: CellGeometry, a: int, b: int) -> tuple[int, np.ndarray]:
     """The geom of pair (a, b) that moves relative to the other, and the joints that move it
     so."""
     joints, every = geometry.joints, np.ones(geometry.radii.shape[1])
@@ -378,13 +346,13 @@ def _mover(geometry: _Geometry, a: int, b: int) -> tuple[int, np.ndarray]:
     return high, (geometry.joint_of_q > joints[low]).astype(float)
 
 
-def _contact_allowed(kind: PairKind, a: _Robot | SolidSpec, b: _Robot | SolidSpec,
+def _contact_allowed(kind: PairKind, a: RobotSolid | SolidSpec, b: RobotSolid | SolidSpec,
                      phase: str) -> bool:
     """The tool and the part may touch an obstacle in the phases it names."""
     if kind is not PairKind.OBSTACLE:
         return False
     robot, solid = (a, b) if isinstance(b, SolidSpec) else (b, a)
-    return (robot in (_Robot.TOOL, _Robot.PART) and isinstance(solid, SolidSpec)
+    return (robot in (RobotSolid.TOOL, RobotSolid.PART) and isinstance(solid, SolidSpec)
             and phase in solid.allow_contact)
 
 

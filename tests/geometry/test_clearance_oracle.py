@@ -22,12 +22,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from kernel.config.build import robot_limits
-from kernel.config.geometry import cell_collision
-from kernel.config.kinematics import robot_kinematics
-from kernel.scenario.fields import Where
 from tests.geometry.oracle import MujocoOracle
-from tools.scenarios.base import robot
 from tools.scenarios.catalog_collision import (
     ELBOW_END,
     ELBOW_START,
@@ -58,20 +53,6 @@ NEAR_ELBOW = [0.0, 0.2, -2.6, -1.0, -1.5708, 0.0]
 HIGH = [0.0414, -1.7316, 2.0356, -1.8748, -1.5708, 0.0414]
 """The TCP 20 cm above the table, tool down."""
 ANCHORS = [TABLE_START, NEAR_TABLE, FIXTURE_START, NEAR_ELBOW, WRIST_START]
-
-
-@pytest.fixture(scope="module")
-def checker():  # type: ignore[no-untyped-def]
-    where = Where("test", "")
-    doc = {"robot": {**robot(), "kinematics": "ur5e"}, "geometry": GEOMETRY}
-    limits = robot_limits(doc["robot"], where.at("robot"))
-    kinematics = robot_kinematics(doc["robot"], where.at("robot"), limits)
-    return cell_collision(doc, where, kinematics)
-
-
-@pytest.fixture(scope="module")
-def oracle() -> MujocoOracle:
-    return MujocoOracle(GEOMETRY, held=True)
 
 
 chunks = st.tuples(
