@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import functools
 import math
+import re
 import typing
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -228,7 +229,7 @@ def _typed_tuple(value: Any, args: tuple[Any, ...], where: Where) -> tuple[Any, 
 
 def check_bounds(value: Any, meta: msgspec.Meta, where: Where) -> None:
     """The one range check: a finite number within ``meta``'s ``ge``/``gt``/``le``, a text
-    within its ``min_length``/``max_length``."""
+    within its ``min_length``/``max_length`` and matching its ``pattern``."""
     if isinstance(value, str):
         _check_length(value, meta, where)
         return
@@ -253,6 +254,8 @@ def _check_length(value: str, meta: msgspec.Meta, where: Where) -> None:
                           f"must be at least {meta.min_length} characters, got {len(value)}")
     if meta.max_length is not None and len(value) > meta.max_length:
         raise where.error(f"must be at most {meta.max_length} characters, got {len(value)}")
+    if meta.pattern is not None and re.search(meta.pattern, value) is None:
+        raise where.error(f"must match {meta.pattern}, got {shown(value)}")
 
 
 def _number(bound: float) -> str:

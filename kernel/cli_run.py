@@ -314,7 +314,7 @@ def serve_command(args: argparse.Namespace) -> int:
         raise ManifestError(f"--port: must be 0 to 65535, got {port}")
     if not (args.expose or is_loopback(host)):
         raise ManifestError(f"--host: {host!r} is not a loopback address: other hosts could "
-                            "reach the server (the link has no authentication); add --expose "
+                            "reach the server (it has neither TLS nor a token); add --expose "
                             "to mean it")
     serve = standins.load(standins.POLICIES, "serve")
     return int(serve(cell_context(manifest), host, port))

@@ -43,6 +43,7 @@ from kernel.settings import (
     PlantKind,
     TrialEnvelope,
 )
+from kernel.shell.link_security import LinkSecurity, SecurityError, link_security
 from kernel.shell.link_settings import PolicyProtocol, PolicySettings
 from kernel.tables import read_table
 from skills.phases import Executor, TaskPhase
@@ -75,6 +76,9 @@ class Manifest:
     emulator: EmulatorSettings
     cell: CellSettings = field(default_factory=CellSettings)
     policy: PolicySettings = field(default_factory=PolicySettings)
+    link_security: LinkSecurity = field(default_factory=LinkSecurity)
+    """``[policy.tls]`` and ``[policy.auth]`` as loaded: the TLS context and the token, every
+    file read while the manifest loaded (kernel/shell/link_security.py)."""
     journal: JournalSettings = field(default_factory=JournalSettings)
     task: TaskSettings | None = None
     """``[task]``: the assembly task's layout, checked on load (None: no such table; the
@@ -139,13 +143,15 @@ def _load(path: Path, raw: str) -> Manifest:
     emulator = _read(EmulatorSettings, doc, "emulator", where)
     driver_settings = decode_driver_settings(driver_name, driver, emulator.launch, where)
     policy = _policy(_read(PolicySettings, doc, "policy", where), where.at("policy"))
+    security = _policy_security(policy, where.at("policy"))
     _check_link_loss_first(core, policy, where)
     return Manifest(
         name=run_name(doc, path, where), path=path, core=core,
         sections=ScenarioSections.of(written),
         driver_name=driver_name, driver_settings=driver_settings, emulator=emulator,
         cell=_read(CellSettings, doc, "cell", where),
-        policy=policy, journal=_read(JournalSettings, doc, "journal", where),
+        policy=policy, link_security=security,
+        journal=_read(JournalSettings, doc, "journal", where),
         task=_task(doc, where, core),
         operator=_read(OperatorSettings, doc, "operator", where),
         safety=safety_table(doc, where, core.control_period_ns),
@@ -217,6 +223,24 @@ def _policy(settings: PolicySettings, where: Where) -> PolicySettings:
             "launches would take connections from other hosts (the link has no "
             "authentication). Use 127.0.0.1, or set policy.expose = true to mean it")
     return settings
+
+
+def _policy_security(settings: PolicySettings, where: Where) -> LinkSecurity:
+    """``[policy.tls]`` and ``[policy.auth]`` read and checked now (every file, the token),
+    so a run never starts to find them unusable."""
+    for key in ("tls", "auth"):
+        if settings.launch and getattr(settings, key) is not None:
+            raise where.at(key).error(
+                "only with launch = false: the reference server warden launches listens on "
+                "loopback, without TLS or a token; start your policy server yourself and name "
+                "its host and port")
+    try:
+        return link_security(settings, Path(where.file).resolve().parent)
+    except SecurityError as error:
+        place = where
+        for part in error.key.split("."):
+            place = place.at(part)
+        raise place.error(error.message) from None
 
 
 def _policy_protocol(settings: PolicySettings, where: Where) -> None:

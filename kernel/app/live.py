@@ -91,13 +91,15 @@ async def _run_live(manifest: Manifest, journal_dir: Path | None,
         # honoured before the first tick, through the same orderly shutdown.
         worker.start()
         await bring_up(context)  # a device that is not there fails here, before anything
-        url = f"ws://{manifest.policy.host}:{manifest.policy.port}"
+        security = manifest.link_security
+        url = f"{security.scheme}://{manifest.policy.host}:{manifest.policy.port}"
         if not stop.requested and manifest.policy.launch:
             server = _Launched(standins.load(standins.POLICIES, "reference")(
                 context.cell.context))
             url = server.start()
         if not stop.requested:
-            client = RobotClient(ClientConfig(url=url, policy=manifest.policy),
+            client = RobotClient(ClientConfig(url=url, policy=manifest.policy,
+                                              security=security),
                                  context.cell.gateway, pacer=loop.pacer, server=server)
             await _supervise(context, client, worker, operator, loop, failures)
     finally:

@@ -39,6 +39,7 @@ from kernel.core import events as ev
 from kernel.core.effects import ChunkDecision, EndSession, RequestObservation
 from kernel.shell.link_budget import AdmissionPacer
 from kernel.shell.link_connection import SILENCE, Connection, LinkEnd, LinkEnded, closed
+from kernel.shell.link_credentials import foreign_server, subprotocols
 from kernel.shell.link_intake import ChunkIntake
 from kernel.shell.link_openpi import OpenpiLink, OpenpiProtocol
 from kernel.shell.link_protocol import (
@@ -53,6 +54,7 @@ from kernel.shell.link_protocol import (
     Send,
     WardenProtocol,
 )
+from kernel.shell.link_security import why_refused
 from kernel.shell.link_settings import PolicyProtocol
 from kernel.shell.link_types import (
     ClientConfig,
@@ -92,6 +94,8 @@ class RobotClient:
         self._stopped = asyncio.Event()
         self._down_reported = False
         self._healthy = False
+        self.refusal: str | None = None
+        """Why the last connection attempt was refused for good (None: none was)."""
         gateway.on(RequestObservation, self._on_request)
         gateway.on(EndSession, self._on_session_end)
         gateway.on(ChunkDecision, self._on_chunk_decided)
@@ -184,15 +188,37 @@ class RobotClient:
     async def _connect_once(self) -> LinkEnd:
         self.state = LinkState.CONNECTING
         cfg = self.config
+        protocol, security = cfg.policy.protocol, cfg.security
+        tls = {} if security.tls is None else {"ssl": security.tls,
+                                               "server_hostname": security.server_name}
         try:
             async with connect(
                 self.url, max_size=cfg.policy.max_frame_bytes, compression=None, ping_interval=None,
                 open_timeout=cfg.open_timeout_s, close_timeout=cfg.close_timeout_s, proxy=None,
+                additional_headers=security.headers(protocol),
+                subprotocols=subprotocols(protocol), **tls,  # type: ignore[arg-type]
             ) as ws:
-                return await self._serve(ws)
-        except (OSError, TimeoutError, InvalidHandshake):
+                foreign = foreign_server(protocol, ws.subprotocol)
+                if foreign is None:
+                    return await self._serve(ws)
+                await ws.close(1002, "no common subprotocol")
+                self._refused(foreign)
+                return LinkEnd.OTHER  # the server answers: restarting it would not help
+        except (OSError, TimeoutError, InvalidHandshake) as error:
             self.counters.connect_failures += 1  # nothing to close; back off and retry
-            return LinkEnd.UNREACHABLE
+            refused = why_refused(error, tls=security.tls is not None)
+            if refused is None:
+                return LinkEnd.UNREACHABLE
+            self._refused(refused)
+            return LinkEnd.OTHER
+
+    def _refused(self, why: str) -> None:
+        """A refusal retrying will not mend: counted, and logged when it changes (the client
+        still retries with backoff: an operator may be fixing the server's side)."""
+        self.counters.connects_refused += 1
+        if why != self.refusal:
+            log.warning("policy server connection refused", detail=why)
+        self.refusal = why
 
     async def _serve(self, ws: ClientConnection) -> LinkEnd:
         self.counters.connects += 1

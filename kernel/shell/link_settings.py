@@ -58,15 +58,48 @@ class OpenpiSettings(msgspec.Struct, frozen=True, kw_only=True):
     """The task's instruction, sent with every observation (None: no prompt key)."""
 
 
+FilePath = Annotated[str, Meta(min_length=1, max_length=4096)]
+"""A file the manifest names (relative: to the manifest's directory)."""
+
+
+class TlsSettings(msgspec.Struct, frozen=True, kw_only=True):
+    """``[policy.tls]``: speak ``wss://`` and trust only the server certificates that chain
+    to ``ca_file`` (kernel/shell/link_security.py)."""
+
+    ca_file: FilePath
+    """PEM bundle of the authorities the server's certificate must chain to."""
+    cert_file: FilePath | None = None
+    """PEM certificate this robot presents (a server that asks for one); with ``key_file``."""
+    key_file: FilePath | None = None
+    server_name: Annotated[str, Meta(min_length=1, max_length=253)] | None = None
+    """The name the server's certificate must carry (default: ``host``)."""
+
+
+class AuthSettings(msgspec.Struct, frozen=True, kw_only=True):
+    """``[policy.auth]``: where the link's bearer token is kept. Exactly one of the two: the
+    token itself is never manifest data (a manifest is signed and journaled, not secret)."""
+
+    token_file: FilePath | None = None
+    """A file holding the token (one line; readable by its owner only)."""
+    token_env: Annotated[str, Meta(pattern=r"^[A-Za-z_][A-Za-z0-9_]{0,127}$")] | None = None
+    """An environment variable holding the token (a systemd ``LoadCredential``/``Environment``
+    of the service)."""
+
+
 class PolicySettings(msgspec.Struct, frozen=True, kw_only=True):
     protocol: PolicyProtocol = PolicyProtocol.WARDEN
     openpi: OpenpiSettings | None = None
     """``[policy.openpi]``: required with ``protocol = "openpi"``, refused without it."""
+    tls: TlsSettings | None = None
+    """``[policy.tls]``: ``wss://`` (None: plain ``ws://``)."""
+    auth: AuthSettings | None = None
+    """``[policy.auth]``: a bearer token sent when connecting (None: none)."""
     launch: bool = True
     host: str = "127.0.0.1"
     expose: bool = False
     """A launched reference server may listen on a ``host`` that is not loopback (reachable
-    from other hosts: the link has no authentication). Off: such a host is refused."""
+    from other hosts: the server warden launches has neither TLS nor a token). Off: such a
+    host is refused."""
     port: Annotated[int, Meta(ge=0, le=PORT_MAX)] = 0
     # The reference server's model (stubs/cell/reference.py)
     latency_median_ms: LatencyMs = 30.0

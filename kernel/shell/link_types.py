@@ -15,6 +15,7 @@ from assurance.handshake import ClientHello
 from kernel import wire
 from kernel.core import events as ev
 from kernel.core.effects import Step
+from kernel.shell.link_credentials import LinkSecurity
 from kernel.shell.link_settings import PolicySettings
 
 
@@ -112,6 +113,8 @@ class ClientConfig:
     policy: PolicySettings = field(default_factory=PolicySettings)
     """The manifest's ``[policy]`` as read: what one policy peer may cost (frame and chunk
     rates, requests in flight, timeouts, heartbeats), bounded where it is declared."""
+    security: LinkSecurity = field(default_factory=LinkSecurity)
+    """``[policy.tls]`` and ``[policy.auth]`` as loaded (kernel/shell/link_security.py)."""
     handshake_timeout_s: float = 5.0
     open_timeout_s: float = 5.0
     close_timeout_s: float = 1.0
@@ -141,6 +144,10 @@ class ClientConfig:
 class LinkCounters:
     connects: int = 0
     connect_failures: int = 0
+    connects_refused: int = 0
+    """Connection attempts that retrying will not mend: a certificate, a credential, a
+    plain-text link to a TLS server, a server that is not warden's (counted in
+    ``connect_failures`` too)."""
     reconnects: int = 0
     frames_in: int = 0
     frames_out: int = 0

@@ -14,6 +14,7 @@ import sys
 
 import uvloop
 
+from stubs.policy_server.access import Access, read_token
 from stubs.policy_server.config import DEFAULT_GOAL, ServerConfig
 from stubs.policy_server.envelope import ReplacementPolicy
 from stubs.policy_server.faults import FaultConfig
@@ -65,6 +66,10 @@ def parse_args(argv: list[str] | None = None) -> ServerConfig:
     p.add_argument("--heartbeat-interval", type=float, default=d.heartbeat_interval_s)
     p.add_argument("--heartbeat-timeout", type=float, default=d.heartbeat_timeout_s)
     p.add_argument("--fault", action="append", default=[], metavar="NAME=VALUE")
+    p.add_argument("--tls-cert", help="PEM certificate: serve wss:// (with --tls-key)")
+    p.add_argument("--tls-key", help="PEM private key of --tls-cert")
+    p.add_argument("--client-ca", help="PEM bundle: require client certificates it signed")
+    p.add_argument("--token-file", help="a file holding the bearer token clients must send")
     a = p.parse_args(argv)
     try:
         return ServerConfig(
@@ -81,8 +86,10 @@ def parse_args(argv: list[str] | None = None) -> ServerConfig:
             clock_offset_ns=round(a.clock_offset_ms * 1e6), seed=a.seed,
             heartbeat_interval_s=a.heartbeat_interval, heartbeat_timeout_s=a.heartbeat_timeout,
             faults=FaultConfig.parse(a.fault),
+            access=Access(cert_file=a.tls_cert, key_file=a.tls_key, client_ca=a.client_ca,
+                          token=read_token(a.token_file) if a.token_file else None),
         )
-    except ValueError as error:
+    except (ValueError, OSError) as error:
         p.error(str(error))
         raise  # p.error exits; this keeps the type checker informed
 
@@ -98,7 +105,12 @@ async def _main(config: ServerConfig) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    uvloop.run(_main(parse_args(argv)))
+    config = parse_args(argv)
+    try:
+        uvloop.run(_main(config))
+    except OSError as error:  # a certificate that does not load, a port that is taken
+        print(f"python -m stubs.policy_server: {error}", file=sys.stderr)
+        return 2
     return 0
 
 

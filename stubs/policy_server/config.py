@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from stubs.policy_server.access import Access
 from stubs.policy_server.envelope import ChunkSource, ReplacementPolicy
 from stubs.policy_server.faults import FaultConfig
 from stubs.policy_server.handshake import HandshakeOffer
@@ -63,6 +64,8 @@ class ServerConfig:
     heartbeat_interval_s: float = 0.1
     heartbeat_timeout_s: float = 1.0
     faults: FaultConfig = field(default_factory=FaultConfig)
+    access: Access = field(default_factory=Access)
+    """TLS, client certificates and a bearer token (default: plain ``ws://``, anyone)."""
 
     def offer(self, queue_epoch: int) -> HandshakeOffer:
         return HandshakeOffer(

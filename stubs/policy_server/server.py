@@ -22,6 +22,7 @@ from websockets.asyncio.server import Server, ServerConnection
 from websockets.asyncio.server import serve as ws_serve
 from websockets.exceptions import ConnectionClosed
 
+from stubs.policy_server.access import SUBPROTOCOL
 from stubs.policy_server.cartesian import output_for
 from stubs.policy_server.config import ServerConfig
 from stubs.policy_server.envelope import (
@@ -119,9 +120,11 @@ class PolicyServer:
         return int(next(iter(self._server.sockets)).getsockname()[1])
 
     async def __aenter__(self) -> PolicyServer:
+        access = self.config.access
         self._server = await ws_serve(
             self._handle, self.config.host, self.config.port, max_size=MAX_FRAME_BYTES,
-            compression=None, ping_interval=None, close_timeout=1.0,
+            compression=None, ping_interval=None, close_timeout=1.0, ssl=access.tls(),
+            subprotocols=[SUBPROTOCOL], process_request=access.check,  # type: ignore[list-item]
         )
         return self
 

@@ -153,6 +153,8 @@ async def running(
     gateway = gateway or LoopbackGateway()
     async with contextlib.AsyncExitStack() as stack:
         policy = await stack.enter_async_context(PolicyServer(server or server_config()))
+        if "url" in client_changes:  # a URL of another scheme: "{port}" is filled in
+            client_changes["url"] = client_changes["url"].format(port=port or policy.port)
         client = RobotClient(client_config(port or policy.port, **client_changes), gateway,
                              pacer=pacer)
         gateway.client = client
