@@ -17,8 +17,14 @@ run: $(STAMP)
 replay: $(STAMP)
 	$(BIN)/warden replay manifests/scenarios/seed_stale_chunk.json --pretty
 
+# Two sets (tests/conftest.py, WARDEN_TEST_SET): the in-process tests on both cores at once
+# (pytest-xdist), then the wall-clock ones (cells, devices, links, services) alone, so that
+# nothing else competes with their control loops. Both run; either failing fails the target.
+# `$(BIN)/pytest -q` runs every test in one process.
 test: $(STAMP)
-	$(BIN)/pytest -q
+	@WARDEN_TEST_SET=in-process $(BIN)/pytest -q -n 2; in_process=$$?; \
+	WARDEN_TEST_SET=wall-clock $(BIN)/pytest -q; wall_clock=$$?; \
+	exit $$(( in_process || wall_clock ))
 
 # The developer loop: the core, link, kinematics, plant and fuzz tests (no cell, emulator or
 # driver; 1545 tests, 145 s of CPU, less the 22 s tests/scenarios saved by replaying each scenario

@@ -27,10 +27,32 @@ it would not make on a robot PC. Such a test runs once more after a failure, and
 fails; pytest's summary lists every rerun (``R``), so a flaky test stays visible."""
 
 
-def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+WALL_CLOCK_DIRS = frozenset({"cell", "cli", "conformance", "drivers", "interop", "ops",
+                             "safety", "shell", "wire"})
+"""The test directories whose tests run cells, devices, emulators, links, timers or services
+against the wall clock (with every test marked ``slow``): the ``wall-clock`` set of
+``make test``, run alone, after the ``in-process`` set (every other test), which runs on both
+cores at once (the Makefile says how)."""
+
+
+def wall_clock(item: pytest.Item) -> bool:
+    relative = item.path.relative_to(Path(__file__).parent)
+    return (item.get_closest_marker("slow") is not None
+            or (len(relative.parts) > 1 and relative.parts[0] in WALL_CLOCK_DIRS))
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     for item in items:
         if item.get_closest_marker("slow") is not None:
             item.add_marker(pytest.mark.flaky(reruns=WALL_CLOCK_RERUNS))
+    chosen = os.environ.get("WARDEN_TEST_SET")
+    if chosen is None:
+        return
+    if chosen not in ("wall-clock", "in-process"):
+        raise pytest.UsageError(f"WARDEN_TEST_SET={chosen!r}: expected wall-clock or in-process")
+    keep = [item for item in items if wall_clock(item) == (chosen == "wall-clock")]
+    config.hook.pytest_deselected(items=[item for item in items if item not in keep])
+    items[:] = keep
 
 
 @pytest.fixture(autouse=True)

@@ -108,7 +108,8 @@ PACED_GATES = ("max_divergence", "max_projection")
 
 
 def pressing_manifest(base: Path, port: int, directory: Path,
-                      max_speed: float | None = None) -> Path:
+                      max_speed: float | None = None,
+                      cycle_timeout_s: float | None = None) -> Path:
     """``base`` for one cycle against a policy server on ``port``, with its own operator
     socket (the default one may be another warden's).
 
@@ -128,6 +129,11 @@ def pressing_manifest(base: Path, port: int, directory: Path,
             raise ValueError(f"{base}: no line matches {pattern!r}")
     if max_speed is not None and max_speed > REFERENCE_SPEED:
         text = _paced(text, base, max_speed / REFERENCE_SPEED)
+    if cycle_timeout_s is not None:
+        text, count = re.subn(r"(?m)^cycle_timeout_s = [0-9.]+",
+                              f"cycle_timeout_s = {cycle_timeout_s}", text, count=1)
+        if count != 1:
+            raise ValueError(f"{base}: no cycle_timeout_s line")
     path = directory / f"pressing-{base.name}"
     path.write_text(text + f'\n[operator]\nsocket = "{directory / "operator.sock"}"\n')
     return path
@@ -162,12 +168,14 @@ def serving(manifest_path: Path, goal: np.ndarray, max_speed: float | None = Non
         process.stop()
 
 
-def run_press(press: Press, manifest_name: str, directory: Path) -> Path:
-    """Run ``press`` through the cell of ``manifest_name``; the run's journal directory."""
+def run_press(press: Press, manifest_name: str, directory: Path,
+              cycle_timeout_s: float | None = None) -> Path:
+    """Run ``press`` through the cell of ``manifest_name`` (its cycle ended after
+    ``cycle_timeout_s`` when given); the run's journal directory."""
     base = MANIFESTS / manifest_name
     goal = press_goal(press, base)
     with serving(base, goal, press.max_speed) as port:
-        manifest = pressing_manifest(base, port, directory, press.max_speed)
+        manifest = pressing_manifest(base, port, directory, press.max_speed, cycle_timeout_s)
         journals = directory / "runs"
         subprocess.run([sys.executable, "-m", "kernel.cli", "run", str(manifest),
                         "--journal-dir", str(journals)], cwd=ROOT, check=False,

@@ -14,7 +14,9 @@ In order, each step one or more rows of the readiness table:
    fault, every joint is inside the manifest's limits, the arm stays where it is;
 4. inspect: the driver's own comparison of the device's modes, limits and calibration with the
    manifest (``Driver.inspect``), reads only;
-5. deactivate, close.
+5. deactivate, close;
+6. the policy server, reached as a run reaches it, without a session
+   (:mod:`kernel.app.check_policy`).
 
 The driver's ``write`` and ``hold`` are never called: a hold is a setpoint to a streaming
 device (servoJ to the measured position, goal := present with torque on), which the device
@@ -35,6 +37,7 @@ from pathlib import Path
 from drivers.base import ControlConfig, DeviceFault, Driver, DriverError, StateSample
 from drivers.readiness import CheckVerdict, Finding, judged, not_exercised, span
 from kernel import signing
+from kernel.app.check_policy import policy_rows
 from kernel.app.compose import world_for
 from kernel.app.device import World
 from kernel.app.session import control_config
@@ -127,7 +130,7 @@ async def check_device(manifest: Manifest, world: World, seconds: float) -> list
             await _step(rows, "deactivate", driver.deactivate())
     finally:
         await _step(rows, "close", driver.aclose())
-    return rows + _not_exercised(manifest)
+    return rows + await policy_rows(manifest) + _not_exercised()
 
 
 async def _connected(driver: Driver, rows: list[Finding]) -> bool:
@@ -234,12 +237,9 @@ async def _inspected(driver: Driver) -> tuple[Finding, ...]:
     return findings
 
 
-def _not_exercised(manifest: Manifest) -> list[Finding]:
+def _not_exercised() -> list[Finding]:
     return [
         not_exercised("motion", "setpoints followed inside the manifest's limits",
                       "check sends no setpoint, hold, stop or gripper command", "0 commands"),
-        not_exercised("policy server", f"{manifest.policy.host}:{manifest.policy.port}"
-                      if not manifest.policy.launch else "launched by the run",
-                      "check does not contact it"),
     ]
 

@@ -360,6 +360,9 @@ class RobotClient:
                                        gateway.now_ns())
         if protocol.accepted:
             self.state = LinkState.ACCEPTED
+        else:  # what the server offered, so that an operator can see what to allow or fix
+            log.warning("policy handshake refused", reasons=list(decision.reasons),
+                        policy_checkpoint=offer.policy_checkpoint, config_hash=offer.config_hash)
         self._apply(outputs)
 
     # -- helpers ---------------------------------------------------------------------------

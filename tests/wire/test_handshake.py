@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import msgspec
+import structlog
 
 from assurance.handshake import ClientHello
 from assurance.reasons import ReasonCode as R
@@ -40,6 +41,20 @@ async def test_reject_sends_nothing_into_the_queue() -> None:
     assert gateway.core.inspect_state().queue.pending_rows(gateway.now_ns()) == 0
     assert gateway.core.inspect_state().session is None
     assert link.client.counters.handshakes_accepted == 0
+
+
+async def test_a_refused_handshake_says_what_the_server_offered() -> None:
+    """The operator reads what to allow (or what to fix on the server): the offered
+    checkpoint and configuration hash, with the core's reasons (for an openpi server the
+    hash is the digest of its metadata frame, which the allowlist pins)."""
+    server = server_config(policy_checkpoint="act-insert-2025-01")
+    with structlog.testing.capture_logs() as logs:
+        async with running(server) as link:
+            await wait_for(lambda: link.gateway.handshakes(), "a handshake decided")
+    refused = [e for e in logs if e["event"] == "policy handshake refused"]
+    assert refused and refused[0]["policy_checkpoint"] == "act-insert-2025-01"
+    assert refused[0]["config_hash"] == server.config_hash
+    assert R.CHECKPOINT_NOT_ALLOWED in refused[0]["reasons"]
 
 
 async def test_chunk_before_the_handshake_never_reaches_the_core() -> None:
