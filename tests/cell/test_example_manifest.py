@@ -1,6 +1,7 @@
 """The shipped real-device example, ``manifests/ur5e-real.example.toml``, as an integrator first
 uses it: a copy with ``driver.host`` set to the controller's address (here the UR controller
-emulator's, a separate process on its real transport), signed, then ``warden check``. It must
+emulator's, a separate process on its real transport), signed, then ``warden check`` with the
+policy server it names running. It must
 be accepted as it ships (every other key untouched) and must never move the arm."""
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from kernel.manifest import load_manifest
 from kernel.model_file import BUILTIN
 from kernel.robot_model import digest
 from kernel.signing import sign
+from stubs.process import EmulatorProcess
 from tests.cell.harness import MANIFESTS
 from tests.cell.test_check import DRIVER_ROWS, SECONDS, device, rows
 
@@ -53,7 +55,11 @@ def test_the_example_is_a_real_device_manifest_with_everything_a_trial_needs() -
 
 
 def test_warden_check_accepts_the_example_against_the_emulator(tmp_path: Path) -> None:
-    with device("ur_rtde") as emulated:
+    """The policy server the example names (127.0.0.1:8765) is running, as it says it must
+    be: check reaches it (a READY ``policy server`` row) without a session."""
+    policy = load_manifest(EXAMPLE).policy
+    with device("ur_rtde") as emulated, EmulatorProcess(
+            "stubs.policy_server", "--host", policy.host, "--port", str(policy.port)):
         path = installed_copy(tmp_path, emulated.settings["host"])
         out = tmp_path / "check.json"
         code = main(["check", str(path), "--keys", str(TEST_KEYS), "--seconds", SECONDS,
@@ -63,7 +69,7 @@ def test_warden_check_accepts_the_example_against_the_emulator(tmp_path: Path) -
         assert code == 0
         ready = rows(report, "READY")
         for name in ("manifest signature", "device: connect", "device: activate",
-                     "state samples", "at rest while held", "device: close",
+                     "state samples", "at rest while held", "device: close", "policy server",
                      *DRIVER_ROWS["ur_rtde"]):
             assert name in ready, f"{name!r} missing: {sorted(ready)}"
         assert emulated.motion_commands() == 0

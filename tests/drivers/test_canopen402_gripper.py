@@ -293,9 +293,11 @@ async def test_without_a_gripper_node_gripper_commands_are_ignored() -> None:
             await driver.aclose()
 
 
+@pytest.mark.slow  # as tests/drivers/test_canopen402_driver.py's MuJoCo plant test says
 async def test_the_gripper_drives_the_mujoco_plant_gripper() -> None:
-    module = pytest.importorskip("stubs.plant.mujoco_plant")
-    for mujoco_cell in _start(module.MujocoPlant()):
+    from stubs.plant.mujoco_plant import MujocoPlant
+
+    for mujoco_cell in _start(MujocoPlant()):
         driver = await _active(mujoco_cell.settings())
         try:
             opened = (await driver.read()).gripper
