@@ -76,7 +76,8 @@ def _socket(manifest: str | None, socket: str) -> Path:
 
     if socket or manifest is None:
         return socket_path(socket)
-    return socket_path(load_manifest(manifest).operator.socket)
+    # Only the socket: an operator need not be able to read the policy link's token.
+    return socket_path(load_manifest(manifest, credentials=False).operator.socket)
 
 
 def send(path: str, command: str, timeout_s: float) -> dict[str, Any]:

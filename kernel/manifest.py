@@ -43,7 +43,12 @@ from kernel.settings import (
     PlantKind,
     TrialEnvelope,
 )
-from kernel.shell.link_security import LinkSecurity, SecurityError, link_security
+from kernel.shell.link_security import (
+    LinkSecurity,
+    SecurityError,
+    check_shape,
+    link_security,
+)
 from kernel.shell.link_settings import PolicyProtocol, PolicySettings
 from kernel.tables import read_table
 from skills.phases import Executor, TaskPhase
@@ -101,12 +106,15 @@ _TOP_KEYS = frozenset({"name", "description", "cell", "driver", "emulator", "pol
 
 
 def load_manifest(path: str | Path, content: bytes | None = None,
-                  signer: str | None = None) -> Manifest:
+                  signer: str | None = None, credentials: bool = True) -> Manifest:
     """Read and check a manifest: every key known, every value typed and within its bounds.
 
     ``content``: the bytes to parse instead of reading ``path`` (the bytes a signature was
     verified on, so that what is checked is what runs); ``signer``: the key id that verified
-    them.
+    them; ``credentials``: read the policy link's CA bundle, client key and token now (False
+    for a command that never connects to the policy server and may run as another user or on
+    another machine: ``warden operator``, ``warden manifest sign``; its ``link_security`` is
+    then the plain default, never to be connected with).
 
     Raises:
         ManifestError: naming the file and the key, for anything a run could not use; nothing
@@ -115,7 +123,7 @@ def load_manifest(path: str | Path, content: bytes | None = None,
     path = Path(path)
     try:
         data = read_bytes(path, str(path)) if content is None else content
-        manifest = _load(path, decoded(data, str(path)))
+        manifest = _load(path, decoded(data, str(path)), credentials)
     except ManifestError:
         raise
     except ScenarioError as error:  # the sections a manifest shares with a scenario
@@ -124,7 +132,7 @@ def load_manifest(path: str | Path, content: bytes | None = None,
                                signer=signer)
 
 
-def _load(path: Path, raw: str) -> Manifest:
+def _load(path: Path, raw: str, credentials: bool) -> Manifest:
     where = Where(str(path), "")
     doc = parse_toml(raw, str(path))
     check_document(doc, where)
@@ -143,7 +151,7 @@ def _load(path: Path, raw: str) -> Manifest:
     emulator = _read(EmulatorSettings, doc, "emulator", where)
     driver_settings = decode_driver_settings(driver_name, driver, emulator.launch, where)
     policy = _policy(_read(PolicySettings, doc, "policy", where), where.at("policy"))
-    security = _policy_security(policy, where.at("policy"))
+    security = _policy_security(policy, where.at("policy"), credentials)
     _check_link_loss_first(core, policy, where)
     return Manifest(
         name=run_name(doc, path, where), path=path, core=core,
@@ -225,9 +233,9 @@ def _policy(settings: PolicySettings, where: Where) -> PolicySettings:
     return settings
 
 
-def _policy_security(settings: PolicySettings, where: Where) -> LinkSecurity:
-    """``[policy.tls]`` and ``[policy.auth]`` read and checked now (every file, the token),
-    so a run never starts to find them unusable."""
+def _policy_security(settings: PolicySettings, where: Where, read: bool) -> LinkSecurity:
+    """``[policy.tls]`` and ``[policy.auth]`` checked now and, when ``read``, every file and
+    the token read, so a run never starts to find them unusable."""
     for key in ("tls", "auth"):
         if settings.launch and getattr(settings, key) is not None:
             raise where.at(key).error(
@@ -235,6 +243,9 @@ def _policy_security(settings: PolicySettings, where: Where) -> LinkSecurity:
                 "loopback, without TLS or a token; start your policy server yourself and name "
                 "its host and port")
     try:
+        if not read:
+            check_shape(settings)
+            return LinkSecurity()
         return link_security(settings, Path(where.file).resolve().parent)
     except SecurityError as error:
         place = where

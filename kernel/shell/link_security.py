@@ -37,12 +37,28 @@ class SecurityError(ValueError):
         self.message = message
 
 
+def check_shape(policy: PolicySettings) -> None:
+    """What the tables must say, whatever machine reads them (no file is read): exactly one
+    place for the token, a client certificate with its key.
+
+    Raises:
+        SecurityError: naming the key."""
+    auth, tls = policy.auth, policy.tls
+    if auth is not None and (auth.token_file is None) == (auth.token_env is None):
+        raise SecurityError("auth", "name exactly one of token_file and token_env")
+    if tls is not None and (tls.cert_file is None) != (tls.key_file is None):
+        key = "tls.key_file" if tls.key_file is None else "tls.cert_file"
+        raise SecurityError(key, "cert_file and key_file go together (the client certificate "
+                                 "and its private key)")
+
+
 def link_security(policy: PolicySettings, base: Path) -> LinkSecurity:
     """The link's TLS context and token, every file read now; relative paths from ``base``
     (the manifest's directory).
 
     Raises:
         SecurityError: naming the key (``tls.ca_file``, ``auth.token_env``, ...)."""
+    check_shape(policy)
     tls = None if policy.tls is None else _client_context(policy.tls, base)
     token = None if policy.auth is None else _token(policy.auth, base)
     name = None if policy.tls is None else (policy.tls.server_name or policy.host)
@@ -57,10 +73,6 @@ def _client_context(settings: TlsSettings, base: Path) -> ssl.SSLContext:
     except ssl.SSLError as error:
         raise SecurityError("tls.ca_file",
                             f"not a PEM certificate bundle ({error.reason})") from None
-    if (settings.cert_file is None) != (settings.key_file is None):
-        key = "tls.key_file" if settings.key_file is None else "tls.cert_file"
-        raise SecurityError(key, "cert_file and key_file go together (the client certificate "
-                                 "and its private key)")
     if settings.cert_file is not None and settings.key_file is not None:
         cert = _file(settings.cert_file, base, "tls.cert_file")
         key = _private(_file(settings.key_file, base, "tls.key_file"), "tls.key_file")
@@ -73,8 +85,6 @@ def _client_context(settings: TlsSettings, base: Path) -> ssl.SSLContext:
 
 
 def _token(settings: AuthSettings, base: Path) -> Token:
-    if (settings.token_file is None) == (settings.token_env is None):
-        raise SecurityError("auth", "name exactly one of token_file and token_env")
     if settings.token_env is not None:
         text = os.environ.get(settings.token_env)
         if text is None or not text.strip():
@@ -163,5 +173,5 @@ def _tls_cause(error: BaseException) -> BaseException:
     return error
 
 
-__all__ = ["SUBPROTOCOL", "LinkSecurity", "SecurityError", "Token", "link_security",
+__all__ = ["SUBPROTOCOL", "LinkSecurity", "SecurityError", "Token", "check_shape", "link_security",
            "subprotocols", "why_refused"]

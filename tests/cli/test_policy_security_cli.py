@@ -112,3 +112,29 @@ def test_a_usable_setting_reaches_the_link_and_hides_the_token(
     assert "s3cret" not in repr(manifest) and "s3cret" not in repr(security)
     assert security.headers(manifest.policy.protocol) == [
         ("Authorization", "Bearer s3cret-token")]
+
+
+def test_signing_elsewhere_and_the_operator_need_no_credentials(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """Manifests are signed on another machine, and ``warden operator`` runs as an operator:
+    neither reads the CA bundle or the token, which live on the robot PC for the service's
+    user (a run still refuses the same file, naming the key). What the tables must say is
+    checked everywhere."""
+    from kernel.cli_operator import _socket
+    from kernel.signing import generate_keypair
+
+    monkeypatch.delenv("WARDEN_TEST_TOKEN_NEVER_SET", raising=False)
+    tables = ('[policy.tls]\nca_file = "/etc/warden/policy-ca.pem"\n'
+              '[policy.auth]\ntoken_env = "WARDEN_TEST_TOKEN_NEVER_SET"\n')
+    path = _manifest(tmp_path, tables + f'[operator]\nsocket = "{tmp_path / "op.sock"}"\n')
+    generate_keypair(tmp_path / "signer.key", tmp_path / "signer.pub")
+    assert main(["manifest", "sign", str(path), "--key", str(tmp_path / "signer.key")]) == 0
+    assert _socket(str(path), "") == tmp_path / "op.sock"
+    assert main(["run", str(path), "--journal-dir", str(tmp_path / "runs")]) == 2
+    assert "policy.tls.ca_file: /etc/warden/policy-ca.pem: no such file" in (
+        capsys.readouterr().err)
+    shaped = _manifest(tmp_path, '[policy.auth]\ntoken_env = "A"\ntoken_file = "t"\n')
+    assert main(["manifest", "sign", str(shaped), "--key", str(tmp_path / "signer.key")]) == 2
+    assert "policy.auth: name exactly one of token_file and token_env" in (
+        capsys.readouterr().err)
