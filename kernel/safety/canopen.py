@@ -53,8 +53,6 @@ log = structlog.get_logger("warden.safety")
 DRAIN_LIMIT = 20_000
 """Most frames one read takes: seconds of a busy bus, so a read always ends."""
 SEND_TIMEOUT_S = 0.05
-CONFIRM_SLACK_S = 0.05
-"""A stop waits for each drive's STOPPED heartbeat up to two heartbeat periods plus this."""
 
 
 class CiA402Watch:
@@ -65,7 +63,9 @@ class CiA402Watch:
         self.settings = settings
         self.device_timeout_s = safety.device_timeout_ms / 1e3
         self.heartbeat_timeout_s = settings.heartbeat_timeout_ms / 1e3
-        self.confirm_s = 2 * settings.heartbeat_period_ms / 1e3 + CONFIRM_SLACK_S
+        # A stop is confirmed by each drive's STOPPED heartbeat, awaited as long as silence is
+        # not yet a loss: a heartbeat late on a loaded host still confirms it.
+        self.confirm_s = self.heartbeat_timeout_s
         ids = ", ".join(map(str, settings.drive_ids))
         self.description = (f"CiA 402 drives {ids} on {settings.describe_bus()} (own listening "
                             "node: TPDOs, heartbeats, EMCY)")

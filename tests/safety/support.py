@@ -138,6 +138,15 @@ class Monitor:
                  if line.startswith("{")]
         return [line for line in lines if line.get("event") == name]
 
+    def first_stop(self) -> dict[str, Any]:
+        """The first confirmed ``safety stop`` line; failing, the log's end says what happened
+        instead (a ``safety stop failed``, another breach, nothing)."""
+        stops = self.events("safety stop")
+        if not stops:
+            raise AssertionError(f"no confirmed safety stop; the monitor's log ends "
+                                 f"{self.log_path.read_text()[-3000:]}")
+        return stops[0]
+
     def stop(self) -> int:
         if self.process.poll() is None:
             self.process.send_signal(signal.SIGTERM)

@@ -169,7 +169,7 @@ def test_a_joint_past_the_monitors_limit_is_stopped_through_nmt(
         if warden is not None:
             warden.stop()
         assert monitor.stop() == 0
-    first = monitor.events("safety stop")[0]
+    first = monitor.first_stop()
     print(f"the monitor's stop: {first['stop_ms']} ms ({first['answer']})")
     assert first["violations"][0].startswith("position: joint 1 at -1.4")
     assert "every drive reported STOPPED" in first["answer"]
@@ -223,7 +223,7 @@ def test_a_warden_stopped_mid_motion_is_stopped_through_nmt(
         if warden is not None:
             warden.stop()
         assert monitor.stop() == 0
-    stop = monitor.events("safety stop")[0]
+    stop = monitor.first_stop()
     print(f"the monitor's stop: {stop['stop_ms']} ms ({stop['answer']})")
     assert stop["violations"][0].startswith(f"heartbeat_lost: no heartbeat from warden (pid "
                                             f"{warden.pid})")

@@ -151,6 +151,25 @@ async def test_its_stop_takes_every_drive_out_of_wardens_hands(drives: DriveEmul
             await asyncio.sleep(0.01)
 
 
+async def test_a_stop_is_done_when_a_late_heartbeat_confirms_it(drives: DriveEmulator,
+                                                               watch: CiA402Watch) -> None:
+    # CI once saw the drives quick-stop and the monitor log "safety stop failed": on the loaded
+    # host the emulator's STOPPED heartbeat came after two heartbeat periods + 50 ms. A drive is
+    # lost only after heartbeat_timeout_ms of silence, and until then its confirmation counts.
+    async with active(CiA402Driver(_settings(drives, heartbeat_timeout_ms=HEARTBEAT_TIMEOUT_MS)),
+                      arm.control()) as driver:
+        await _stream(driver, 0.1)
+        await _sample_soon(watch)
+        drives.inject("heartbeat_stop", node=GRIPPER)
+        stopping = asyncio.create_task(asyncio.to_thread(watch.stop))
+        await asyncio.sleep(0.4)  # past 2 x 50 ms + 50 ms, well inside the 1000 ms timeout
+        drives.inject("clear")
+        result = await stopping
+        assert result.done, result.detail
+        assert "every drive reported STOPPED" in result.detail
+        del driver
+
+
 async def test_a_cycle_that_stops_while_the_drives_are_operational_is_a_lost_device(
         drives: DriveEmulator, watch: CiA402Watch) -> None:
     # No drive watchdog, which would take the silent drives to PRE-OPERATIONAL (idle) first.

@@ -348,7 +348,7 @@ def test_a_ur_arm_entering_a_keep_out_zone_is_stopped_through_the_dashboard(
             if warden is not None:
                 warden.stop()
             assert monitor.stop() == 0
-    first = monitor.events("safety stop")[0]
+    first = monitor.first_stop()
     print(f"stopped with the TCP at {final.round(4).tolist()}, lowest seen {lowest:.4f} m: "
           f"{first['violations']}")
     assert first["violations"][0].startswith("space: ")

@@ -143,7 +143,7 @@ def test_a_joint_past_the_monitors_limit_is_stopped_through_the_dashboard(
         if warden is not None:
             warden.stop()
         assert monitor.stop() == 0
-    first = monitor.events("safety stop")[0]
+    first = monitor.first_stop()
     assert first["violations"][0].startswith("position: joint 1 at -1.4")
 
 
@@ -186,7 +186,7 @@ def _sim_cell_watched(tmp_path: Path, monitors: Callable[[Path], Path],
         warden.stop()
         if monitor is not None:
             assert monitor.stop() == 0
-    assert monitor.events("safety stop")[0]["answer"] == "brake engaged"
+    assert monitor.first_stop()["answer"] == "brake engaged"
 
 
 def test_a_simulated_joint_past_the_monitors_limit_is_braked(tmp_path: Path) -> None:
@@ -223,7 +223,7 @@ def test_a_simulated_joint_faster_than_the_monitors_limit_is_braked(tmp_path: Pa
 
     with _sim_cell_watched(tmp_path, slow) as (world, _, monitor):
         wait_for(lambda: _braked_at_rest(world), "the brake", timeout_s=20, poll_s=0.01)
-    violations = monitor.events("safety stop")[0]["violations"]
+    violations = monitor.first_stop()["violations"]
     assert all(v.startswith("velocity") for v in violations), violations
 
 
