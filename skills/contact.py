@@ -15,6 +15,7 @@ refused (:class:`NoKinematics`) and a retreat holds.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from enum import StrEnum
 
@@ -76,6 +77,18 @@ class ContactCommand:
     state: ContactState
 
 
+@dataclass(frozen=True, slots=True, eq=False)
+class Descent:
+    """The contact owner's guarded descent an ``insert`` asks for: from ``q`` (where the arm
+    was measured) down to ``z_end`` along the vertical through ``xy``, the tool held at
+    ``rotation``."""
+
+    q: np.ndarray
+    xy: np.ndarray
+    z_end: float
+    rotation: np.ndarray
+
+
 class ContactOwner:
     def __init__(self, kinematics: ArmKinematics | None,
                  config: ContactConfig | None = None) -> None:
@@ -105,6 +118,30 @@ class ContactOwner:
         self._z_end = float(z_end)
         self._softness = 1.0
         self.state = ContactState.DESCENDING
+
+    def begin(self, descent: Descent) -> None:
+        """:meth:`start` the descent an ``insert`` asked for."""
+        self.start(descent.q, descent.xy, descent.z_end, descent.rotation)
+
+    def descent_path(self, descent: Descent, step_m: float) -> np.ndarray:
+        """The configurations ``descent`` would pass through, every ``step_m`` of height and
+        at its ``z_end``, each solved from the one before as the law solves its targets: what
+        a clearance check looks at before the descent may start. A ``z_end`` above the tool is
+        reached in one step, as the law reaches it.
+
+        Raises:
+            NoKinematics: there is no kinematic model to descend with.
+        """
+        kin = self._kinematics()
+        current = np.asarray(descent.q, dtype=float).copy()
+        z_start = float(kin.forward(current).position[2])
+        count = max(1, math.ceil(max(z_start - descent.z_end, 0.0) / step_m))
+        rows = np.empty((count, current.shape[0]))
+        for k in range(count):
+            z = z_start + (descent.z_end - z_start) * (k + 1) / count
+            target = Pose(np.array([descent.xy[0], descent.xy[1], z]), descent.rotation)
+            current = rows[k] = kin.solve(target, current).q
+        return rows
 
     def reset(self) -> None:
         """A new cycle: nothing to descend, hold or retreat from."""

@@ -40,6 +40,7 @@ from assurance.projection import Projection, project, project_fast
 from assurance.reasons import ReasonCode as R
 from assurance.reasons import canonical
 from kernel.core.clearance import clearance_job, collision_line
+from kernel.core.descent import descent_checked
 from kernel.core.effects import ChunkDecision, Compute
 from kernel.core.jobs import (
     ClearanceJob,
@@ -105,12 +106,10 @@ def on_computed(state: CoreState, result: JobResult) -> None:
     """A job's result: finish the parked chunk's admission with it (or clear or refuse the
     planned move it was asked for)."""
     if result.job_id == state.motion.move_check:
-        if isinstance(result, ClearanceResult):
-            move_checked(state.motion, result, state.t, state.emit)
-        else:  # the check could not run: the move is not played unchecked
-            move_checked(state.motion, ClearanceResult(
-                job_id=result.job_id, clear=False, pair=("not", "checked")), state.t,
-                state.emit)
+        move_checked(state.motion, _clearance_or_refusal(result), state.t, state.emit)
+        return
+    if result.job_id == state.motion.descent_check:
+        descent_checked(state.motion, _clearance_or_refusal(result), state.t, state.emit)
         return
     parked = state.parked.pop(result.job_id, None)
     if parked is None:
@@ -129,6 +128,14 @@ def on_computed(state: CoreState, result: JobResult) -> None:
         _evaluate(state, chunk, parked.seen, parked)
     else:  # a result of another kind than the job asked for (a journal edited by hand)
         _decide(state, chunk.chunk_id, (R.INFEASIBLE,), detail="not checked: wrong result")
+
+
+def _clearance_or_refusal(result: JobResult) -> ClearanceResult:
+    """A motion's clearance result; a check that could not run refuses it: no motion is played
+    unchecked."""
+    if isinstance(result, ClearanceResult):
+        return result
+    return ClearanceResult(job_id=result.job_id, clear=False, pair=("not", "checked"))
 
 
 def _ignore_duplicate(state: CoreState, chunk: Chunk) -> None:

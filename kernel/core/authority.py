@@ -15,6 +15,7 @@ from assurance.fallback import Mode, QueueAction
 from assurance.handshake import evaluate
 from assurance.plausibility import judge
 from assurance.reasons import ReasonCode as R
+from kernel.core.descent import request_descent
 from kernel.core.effects import Motion, Retreat, Setpoint
 from kernel.core.events import (
     ClockSyncEvent,
@@ -42,9 +43,9 @@ from kernel.core.lines import (
     MotionLine,
     MotionRequest,
 )
-from kernel.core.motion import request_move
+from kernel.core.motion import MotionContext, request_move
 from kernel.core.state import CoreState
-from skills.contact import NoKinematics
+from skills.contact import Descent, NoKinematics
 from skills.phases import TaskPhase
 from skills.task_fsm import Requester
 
@@ -342,18 +343,22 @@ def on_gripper(state: CoreState, event: GripperEvent) -> None:
 
 
 def on_insert(state: CoreState, event: InsertEvent) -> None:
-    """The contact owner's descent, from where the arm is measured now."""
+    """The contact owner's descent, from where the arm is measured now; with the cell's
+    geometry, once its path is cleared (:func:`~kernel.core.motion.request_descent`)."""
     rotation = np.asarray(event.rotation, dtype=float)
     values = np.array([*event.xy, event.z_end], dtype=float)
     detail = ""
     if rotation.shape != (9,) or not (np.isfinite(rotation).all() and np.isfinite(values).all()):
         detail = "xy, z_end and a 3x3 rotation must be finite numbers"
     else:
+        limits = state.config.limits
+        descent = Descent(limits.clip(state.measured_q)[limits.arm_mask], values[:2],
+                          float(values[2]), rotation.reshape(3, 3))
+        context = MotionContext(state.config, state.t, state.measured_q, state.emit,
+                                str(state.task.phase), state.ask)
         try:
-            limits = state.config.limits
-            start = limits.clip(state.measured_q)[limits.arm_mask]
-            state.motion.contact.start(start, values[:2], float(values[2]),
-                                       rotation.reshape(3, 3))
+            if not request_descent(state.motion, context, descent):
+                return  # checked first: a motion line says whether it started
         except (NoKinematics, ValueError) as error:
             detail = str(error)
     decision = MotionDecision.REFUSED if detail else MotionDecision.STARTED

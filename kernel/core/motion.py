@@ -33,7 +33,7 @@ from kernel.core.config import CoreConfig
 from kernel.core.effects import Hold, Motion, Retreat, Setpoint, Stop
 from kernel.core.jobs import ClearanceJob, ClearanceResult, rows_of
 from kernel.core.lines import Line, MotionDecision, MotionLine, MotionRequest
-from skills.contact import ContactOwner, ContactState
+from skills.contact import ContactOwner, ContactState, Descent
 from skills.interpolator import InterpolatorConfig, SetpointInterpolator
 from skills.planner import MoveStatus, PlannedMove, PlanningError, joint_move
 from skills.trajectory import MotionLimits
@@ -67,6 +67,11 @@ class MotionState:
     move_check: int | None = None
     """The clearance job of the planned move, while its answer is awaited (the arm stays at
     rest until the move is cleared)."""
+    descent_check: int | None = None
+    """The clearance job of the contact owner's descent, while its answer is awaited (the
+    contact owner holds where the arm was until the descent is cleared)."""
+    descent: Descent | None = None
+    """The descent that job is for."""
 
 
 def initial_motion(config: CoreConfig) -> MotionState:
@@ -242,11 +247,16 @@ def move_checked(m: MotionState, result: ClearanceResult, t: int,
     if result.clear:
         _play(m, t, emit)
         return
-    detail = (f"COLLISION: {result.pair[0]} and {result.pair[1]} at {result.distance:.4f} m "
-              f"(at least {result.bound:.4f} m on the way) need {result.needed:.4f} m")
+    detail = collision_detail(result)
     m.move, m.move_status, m.move_detail = None, MoveStatus.REFUSED, detail
     emit(MotionLine(t=ns_to_ms(t), request=MotionRequest.MOVE, decision=MotionDecision.REFUSED,
                     move_id=m.move_id, detail=detail))
+
+
+def collision_detail(result: ClearanceResult) -> str:
+    """What a refused motion's line says: the pair, its distance and the clearance."""
+    return (f"COLLISION: {result.pair[0]} and {result.pair[1]} at {result.distance:.4f} m "
+            f"(at least {result.bound:.4f} m on the way) need {result.needed:.4f} m")
 
 
 def _planner_effect(m: MotionState, q: tuple[float, ...], retreat: bool) -> Motion:

@@ -10,6 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
+import msgspec
 import numpy as np
 
 from assurance.clock import ClockMap, ns_to_ms
@@ -22,7 +23,8 @@ from assurance.queue import ActionQueue, SentRow
 from assurance.reasons import ReasonCode
 from assurance.watermarks import Watermarks
 from kernel.core.config import CoreConfig
-from kernel.core.effects import DecisionRecord, Effect, EndSession
+from kernel.core.effects import Compute, DecisionRecord, Effect, EndSession
+from kernel.core.jobs import ClearanceJob
 from kernel.core.lines import Line, Machine, QueueLine, TransitionLine
 from kernel.core.lines import QueueAction as QueueAct
 from kernel.core.motion import MotionState, initial_motion
@@ -137,6 +139,13 @@ class CoreState:
     def next_job_id(self) -> int:
         self.jobs_issued += 1
         return self.jobs_issued
+
+    def ask(self, job: ClearanceJob) -> int:
+        """Ask the shell for a clearance check (a planned move's, a descent's); its id comes
+        back with the result."""
+        job = msgspec.structs.replace(job, job_id=self.next_job_id())
+        self.effect(Compute(job=job))
+        return job.job_id
 
     def purge(self, reason: ReasonCode | None = None) -> None:
         dropped = self.queue.purge()

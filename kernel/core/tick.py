@@ -20,8 +20,7 @@ from assurance.policy import LinkLoss
 from assurance.queue import Row, SentRow
 from assurance.reasons import ReasonCode as R
 from kernel.core.authority import outside_envelope, validate
-from kernel.core.effects import Compute, Motion, RequestObservation
-from kernel.core.jobs import ClearanceJob
+from kernel.core.effects import Motion, RequestObservation
 from kernel.core.lines import QueueAction, QueueLine, RequestLine, SentRef, TickLine
 from kernel.core.motion import MotionContext, motion_for
 from kernel.core.state import CoreState
@@ -77,7 +76,7 @@ def _motion(state: CoreState, decision: TickCommand, row: Row | None) -> Motion:
     if row is not None and decision.owner is Owner.POLICY:
         stream = (row.segment.step_into(row.row), row.segment.dt)
     context = MotionContext(state.config, state.t, state.measured_q, state.emit,
-                            str(state.task.phase), lambda job: _ask(state, job))
+                            str(state.task.phase), state.ask)
     return motion_for(state.motion, context, decision.command, decision.owner, decision.target,
                       sent, stream, decision.relax)
 
@@ -231,10 +230,3 @@ def _maybe_request(state: CoreState) -> None:
             depth_ms=ns_to_ms(depth), low_watermark_ms=ns_to_ms(marks.low_ns),
         ))
         state.effect(RequestObservation(queue_depth=rows))
-
-
-def _ask(state: CoreState, job: ClearanceJob) -> int:
-    """Ask the shell for a planned move's clearance check; its id comes back with the result."""
-    job = msgspec.structs.replace(job, job_id=state.next_job_id())
-    state.effect(Compute(job=job))
-    return job.job_id

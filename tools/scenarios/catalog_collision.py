@@ -149,6 +149,39 @@ def collision_planner_move_refused() -> ScenarioSpec:
     )
 
 
+TOOL_DOWN = [0.0, 1.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, -1.0]
+"""The TCP's rotation at FIXTURE_START (row-major): the tool's axis straight down."""
+HOLE_XY = [-0.55, -0.15]
+PEG_BOTTOM_BELOW_TCP = 0.0475
+
+
+def collision_descent_refused() -> ScenarioSpec:
+    """The contact owner's descent is checked before it starts, at CONTACT's clearance."""
+    contact = {"CONTACT": {"executor": "contact"}}
+    return ScenarioSpec(
+        name="collision_descent_refused",
+        description="In CONTACT the task asks the contact owner for a descent into the hole "
+                    "whose end would put the held peg's bottom 5 mm into the table under the "
+                    "fixture: the tool and the part may touch the fixture in CONTACT, not the "
+                    "table. The descent's path is checked before it starts and refused naming "
+                    "the pair, the contact owner holding where the arm is; the next insert, to "
+                    "3 mm above the table, is cleared and starts.",
+        robot=_robot(), geometry=GEOMETRY, phases=contact,
+        session=session(phase="CONTACT", state=list(FIXTURE_START)),
+        events=[event(0, "gripper", opening=0.0), st(0, list(FIXTURE_START)),
+                event(10, "insert", xy=HOLE_XY, z_end=PEG_BOTTOM_BELOW_TCP - 0.005,
+                      rotation=TOOL_DOWN),
+                event(30, "insert", xy=HOLE_XY, z_end=PEG_BOTTOM_BELOW_TCP + 0.003,
+                      rotation=TOOL_DOWN)],
+        until=60,
+        expect=[{"kind": "motion", "request": "insert", "decision": "refused", "t": 10},
+                {"kind": "motion", "request": "insert", "decision": "started", "t": 30},
+                {"kind": "tick", "t": 20, "owner": "contact", "phase": "CONTACT"}],
+        forbid=[{"kind": "motion", "request": "insert", "decision": "started", "t": 10}],
+    )
+
+
 SCENARIOS = (collision_into_the_table, collision_into_the_fixture,
              collision_elbow_into_the_table, collision_wrist_into_the_upper_arm,
-             collision_free_approach_admitted, collision_planner_move_refused)
+             collision_free_approach_admitted, collision_planner_move_refused,
+             collision_descent_refused)
