@@ -67,6 +67,8 @@ WireStep = Annotated[int, msgspec.Meta(gt=0, le=MAX_TIME_NS)]
 WireCount = Annotated[int, msgspec.Meta(ge=0, le=MAX_TIME_NS)]
 """Sequence numbers and queue epochs: counted up from 0, never past the int64 range."""
 ActionIndex = Annotated[int, msgspec.Meta(ge=0)]
+RtcDelay = Annotated[int, msgspec.Meta(ge=0, le=1024)]
+"""Actions of a chunk conditioned on the committed prefix (assurance/rtc.py, MAX_PREFIX_ROWS)."""
 
 
 class WireChunk(msgspec.Struct, frozen=True, kw_only=True):
@@ -100,6 +102,9 @@ class WireChunk(msgspec.Struct, frozen=True, kw_only=True):
     phase_markers: tuple[ActionIndex, ...] = ()
     action_units: str | None = None
     action_frame: str | None = None
+    rtc_delay: RtcDelay | None = None
+    """Real-time chunking: the chunk starts at its observation's time and its first
+    ``rtc_delay`` actions reproduce the committed prefix that observation carried."""
 
 
 # ---------------------------------------------------------------------------------------------
@@ -146,6 +151,7 @@ class Chunk(msgspec.Struct, frozen=True, kw_only=True, eq=False):
     """H x D float64, read-only (numpy; a Struct field holds any object)."""
     nonfinite: tuple[str, ...]
     payload_hash: str
+    rtc_delay: int | None = None
 
     def time(self, name: str) -> int | None:
         return self.times.get(name)
@@ -303,6 +309,7 @@ def from_wire(wire: WireChunk, client_receive: int) -> Chunk:
         payload_hash=_digest(
             identity, wire.first_action_time, wire.action_dt, actions.shape, canonical
         ),
+        rtc_delay=wire.rtc_delay,
     )
 
 
@@ -371,5 +378,5 @@ def to_wire(chunk: Chunk) -> WireChunk:
         actions=ArrayPayload.from_array(chunk.actions), state_fingerprint=fingerprint,
         replacement_policy=chunk.replacement_policy, fallback_id=chunk.fallback_id,
         phase_markers=chunk.phase_markers, action_units=chunk.action_units,
-        action_frame=chunk.action_frame, **times,
+        action_frame=chunk.action_frame, rtc_delay=chunk.rtc_delay, **times,
     )

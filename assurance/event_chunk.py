@@ -87,7 +87,16 @@ def _build(
         payload_hash=payload_hash(
             identity_fields(fields), times["first_action_time"], times["action_dt"], actions
         ),
+        rtc_delay=_rtc_delay(event.get("rtc_delay")),
     )
+
+
+def _rtc_delay(value: Any) -> int | None:
+    if value is None:
+        return None
+    if not isinstance(value, int) or isinstance(value, bool) or not 0 <= value <= 1024:
+        raise ChunkDecodeError("field 'rtc_delay' must be an action count from 0 to 1024")
+    return value
 
 
 def _text_or_int(event: Mapping[str, Any], name: str) -> str:

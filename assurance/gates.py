@@ -143,9 +143,13 @@ def time_verdict(chunk: Chunk, ctx: AdmissionContext, t_obs: int | None) -> Timi
     if late >= runnable_until:
         reasons.append(R.EXPIRED)
     elif late > 0:
-        if not policy.trim:
+        # The first rtc_delay actions of a conditioned chunk are the committed prefix, which
+        # is running: dropping them trims nothing of the policy's own plan (assurance/rtc.py
+        # checks that they are that prefix), not even a gripper event it already carries.
+        committed = chunk.rtc_delay is not None and late <= chunk.rtc_delay
+        if not (policy.trim or committed):
             reasons.append(R.EXPIRED)
-        elif _trim_deletes_event(chunk, late, ctx.limits):
+        elif _trim_deletes_event(chunk, late, ctx.limits, gripper=not committed):
             reasons.append(R.TRIM_FORBIDDEN)
         else:
             trim = late
@@ -156,12 +160,14 @@ def _stricter(phase_bound: int, proposer_bound: int | None) -> int:
     return phase_bound if proposer_bound is None else min(phase_bound, proposer_bound)
 
 
-def _trim_deletes_event(chunk: Chunk, late: int, limits: JointLimits) -> bool:
-    """True if dropping actions ``0..late-1`` would delete a gripper event or a phase marker."""
+def _trim_deletes_event(chunk: Chunk, late: int, limits: JointLimits,
+                        gripper: bool = True) -> bool:
+    """True if dropping actions ``0..late-1`` would delete a phase marker or (``gripper``) a
+    gripper event."""
     if any(marker < late for marker in chunk.phase_markers):
         return True
     grip = limits.gripper_index
-    if grip is None or late < 2 or grip >= chunk.actions.shape[1]:
+    if not gripper or grip is None or late < 2 or grip >= chunk.actions.shape[1]:
         return False
     prefix = chunk.actions[:late, grip]
     return bool(np.any(np.abs(np.diff(prefix)) > limits.gripper_event_threshold))

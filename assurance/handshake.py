@@ -50,6 +50,9 @@ class HandshakeOffer(msgspec.Struct, frozen=True, kw_only=True):
     calibration_epoch: int | str | None = None
     queue_epoch: int | None = None
     reason_codes: tuple[str, ...] | None = None
+    rtc: bool = False
+    """The server honours a committed prefix (real-time chunking, assurance/rtc.py): warden
+    sends one with each observation, and its chunks may say they were conditioned on it."""
 
 
 class HandshakeVerdict(StrEnum):

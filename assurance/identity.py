@@ -10,6 +10,10 @@ from __future__ import annotations
 
 from collections import OrderedDict
 from enum import StrEnum
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from assurance.rtc import RtcPrefix
 
 
 class Seen(StrEnum):
@@ -56,19 +60,29 @@ class ObservationLog:
         self.capacity = capacity
         self._times: OrderedDict[str, int] = OrderedDict()
         self._answered: set[str] = set()
+        self._prefixes: dict[str, RtcPrefix] = {}
         self.latest: str | None = None
 
-    def record(self, observation_id: str, t_event: int) -> None:
+    def record(self, observation_id: str, t_event: int, prefix: RtcPrefix | None = None) -> None:
+        """An observation sent at ``t_event``, with the committed prefix it carried, if any."""
         self._times[observation_id] = t_event
         self._times.move_to_end(observation_id)
         self._answered.discard(observation_id)
+        self._prefixes.pop(observation_id, None)
+        if prefix is not None:
+            self._prefixes[observation_id] = prefix
         self.latest = observation_id
         if len(self._times) > self.capacity:
             oldest, _ = self._times.popitem(last=False)
             self._answered.discard(oldest)
+            self._prefixes.pop(oldest, None)
 
     def time_of(self, observation_id: str) -> int | None:
         return self._times.get(observation_id)
+
+    def prefix_of(self, observation_id: str) -> RtcPrefix | None:
+        """The committed prefix the observation carried (real-time chunking), if any."""
+        return self._prefixes.get(observation_id)
 
     def answer(self, observation_id: str) -> None:
         """An admitted chunk answered ``observation_id``: it is no longer pending."""
@@ -88,4 +102,5 @@ class ObservationLog:
         """A new session: observations of the old one are no longer this client's."""
         self._times.clear()
         self._answered.clear()
+        self._prefixes.clear()
         self.latest = None

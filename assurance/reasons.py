@@ -87,6 +87,15 @@ class ReasonCode(StrEnum):
     closer than the phase's clearance (the arm's links, tool or held part against an
     obstacle or a keep-out zone, or two non-adjacent links against each other): the chunk is
     refused and the arm holds where its checked motion left it (SAFE_HOLD)."""
+    RTC_PREFIX_MISMATCH = "RTC_PREFIX_MISMATCH"
+    """A chunk conditioned on the committed prefix an observation carried (real-time
+    chunking) whose first ``rtc_delay`` actions do not agree with that prefix within the
+    phase's ``max_projection``, or that claims more of it than was sent, on another action
+    grid, or for an observation that sent none: its seam would not be the committed motion."""
+    RTC_DELAY_EXCEEDED = "RTC_DELAY_EXCEEDED"
+    """A chunk conditioned on the committed prefix arrived after more of its actions were due
+    than the ``rtc_delay`` it was conditioned on: the arm would run actions the policy planned
+    without knowing what ran meanwhile."""
 
 
 _ORDER = {code: index for index, code in enumerate(ReasonCode)}

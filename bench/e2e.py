@@ -116,7 +116,8 @@ class _BenchGateway:
     def client_side_hello(self) -> ClientHello:
         return self.core.config.client.hello(self.core.status().epoch)
 
-    def capture_observation(self) -> RobotSample:
+    def capture_observation(self, prefix_grid_ns: int | None = None,
+                            at_ns: int | None = None) -> RobotSample:
         return RobotSample(q=self.q.copy(), task_phase="FREE_SPACE",
                            qd=np.zeros(6), wrench=np.zeros(6))
 

@@ -26,6 +26,7 @@ from assurance.clock import ns_to_ms
 from assurance.envelope import TIME_FIELDS, Chunk, MalformedChunk
 from assurance.handshake import MalformedOffer, OfferIn
 from assurance.reasons import ReasonCode
+from assurance.rtc import RtcPrefix
 from kernel.core.effects import Motion
 from kernel.core.events import (
     ChunkEvent,
@@ -149,8 +150,17 @@ def chunk_fields(chunk: Chunk) -> dict[str, Any]:
     fields["replacement_policy"] = str(chunk.replacement_policy)
     if chunk.phase_markers:
         fields["phase_markers"] = list(chunk.phase_markers)
+    if chunk.rtc_delay is not None:
+        fields["rtc_delay"] = chunk.rtc_delay
     fields["actions"] = chunk.actions.tolist()
     return fields
+
+
+def prefix_fields(prefix: RtcPrefix) -> dict[str, Any]:
+    """An observation's committed prefix in file form (the grid's interval exact, in ns)."""
+    return {"actions": [list(row) for row in prefix.actions],
+            "first_action_time_ns": prefix.first_due, "action_dt_ns": prefix.action_dt,
+            "delay": prefix.delay, "horizon": prefix.horizon}
 
 
 def _offer(offer: OfferIn) -> Any:
@@ -161,7 +171,8 @@ def _offer(offer: OfferIn) -> Any:
 _BODIES: dict[type, Callable[[Any], dict[str, Any]]] = {
     StateEvent: _state,
     ChunkEvent: _chunk,
-    ObservationEvent: lambda e: {"kind": "observation", "observation_id": e.observation_id},
+    ObservationEvent: lambda e: {"kind": "observation", "observation_id": e.observation_id,
+                                 **({"rtc": prefix_fields(e.rtc)} if e.rtc else {})},
     PhaseEvent: lambda e: {"kind": "phase", "to": e.to, "evidence": dict(e.evidence),
                            "by": e.by},
     ForceEvent: lambda e: {"kind": "force", "residual": e.residual},

@@ -29,10 +29,12 @@ from assurance.envelope import (
     ArrayPayload,
     WireChunk,
     WireCount,
+    WireStep,
     WireTime,
     short_error,
 )
 from assurance.handshake import ClientHello, HandshakeDecision, HandshakeOffer
+from assurance.rtc import PrefixLength, RtcPrefix
 
 PROTOCOL_RANGE: tuple[int, int] = (1, 2)
 MAX_FRAME_BYTES = 1 << 20
@@ -145,6 +147,19 @@ class ClockReport(msgspec.Struct, frozen=True, kw_only=True):
     round_trip: Duration
 
 
+class WirePrefix(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    """The committed prefix on the wire: ``actions`` (rows × the chunks' width, float64) due at
+    ``first_action_time + k * action_dt``, from the one in force at the observation's
+    ``t_event`` on; ``delay`` and ``horizon`` in actions (assurance/rtc.py)."""
+
+    actions: ArrayPayload
+    first_action_time: WireTime
+    """Client clock: when ``actions[0]`` was due (the action in force at ``t_event``)."""
+    action_dt: WireStep
+    delay: PrefixLength
+    horizon: PrefixLength
+
+
 class Observation(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     """What a real robot sends: its own measurements and the context it is in, nothing more.
 
@@ -161,6 +176,9 @@ class Observation(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     qd: ArrayPayload | None = None
     wrench: ArrayPayload | None = None
     gripper: float | None = None
+    rtc: WirePrefix | None = None
+    """Real-time chunking, to a server that offered it: what warden committed from
+    ``t_event`` on (assurance/rtc.py)."""
 
 
 class Heartbeat(msgspec.Struct, frozen=True, kw_only=True):
@@ -254,6 +272,14 @@ def _why(error: Exception) -> str:
 # ---------------------------------------------------------------------------------------------
 # Arrays and clocks
 # ---------------------------------------------------------------------------------------------
+
+
+def prefix_payload(prefix: RtcPrefix) -> WirePrefix:
+    """The committed prefix as an observation carries it."""
+    actions = np.array(prefix.actions, dtype="<f8")
+    return WirePrefix(actions=ArrayPayload.from_array(actions),
+                      first_action_time=prefix.first_due, action_dt=prefix.action_dt,
+                      delay=prefix.delay, horizon=prefix.horizon)
 
 
 def vector_payload(values: np.ndarray | tuple[float, ...]) -> ArrayPayload:

@@ -23,8 +23,8 @@ import numpy as np
 
 from assurance.cartesian import Mapped
 from assurance.clock import ns_to_ms
-from assurance.envelope import Chunk, MalformedChunk, ReplacementPolicy
-from assurance.fallback import IRRELEVANT, refusal_trigger
+from assurance.envelope import Chunk, MalformedChunk
+from assurance.fallback import IRRELEVANT
 from assurance.gates import (
     AdmissionContext,
     Timing,
@@ -39,9 +39,10 @@ from assurance.merge import MergeDraft, MergeInputs, MergePlan, draft_merge
 from assurance.projection import Projection, project, project_fast
 from assurance.reasons import ReasonCode as R
 from assurance.reasons import canonical
+from assurance.rtc import rtc_reasons
 from kernel.core.clearance import clearance_job, collision_line
 from kernel.core.descent import descent_checked
-from kernel.core.effects import ChunkDecision, Compute
+from kernel.core.effects import Compute
 from kernel.core.jobs import (
     ClearanceJob,
     ClearanceResult,
@@ -59,6 +60,7 @@ from kernel.core.jobs import (
 from kernel.core.lines import ChunkLine, Decision
 from kernel.core.motion import move_checked
 from kernel.core.state import CoreState
+from kernel.core.verdict import answered_unusably, commit, log_decision, refuse
 
 _PROJECTION_DIGITS = 9
 _MAX_PROJECTION_JOBS = 2
@@ -82,7 +84,7 @@ class Parked:
 
 def admit(state: CoreState, chunk: Chunk | MalformedChunk) -> None:
     if isinstance(chunk, MalformedChunk):
-        _decide(state, chunk.chunk_id, (R.MALFORMED,), detail=chunk.detail)
+        refuse(state, chunk.chunk_id, (R.MALFORMED,), detail=chunk.detail)
         return
     seen = state.memory.classify(chunk.chunk_id, chunk.payload_hash)
     if seen is Seen.DUPLICATE:
@@ -91,7 +93,7 @@ def admit(state: CoreState, chunk: Chunk | MalformedChunk) -> None:
     if seen is Seen.NEW and state.observations.answered(chunk.observation_id):
         # Not remembered either: a flood of second answers must not push real chunks out of
         # the duplicate memory. (A reused chunk id is worse news: ID_CONFLICT, every gate.)
-        _decide(state, chunk.chunk_id, (R.OBSERVATION_ANSWERED,))
+        refuse(state, chunk.chunk_id, (R.OBSERVATION_ANSWERED,))
         return
     state.memory.remember(chunk.chunk_id, chunk.payload_hash)
     if state.config.cartesian is not None and _worth_mapping(state, chunk, seen):
@@ -116,7 +118,7 @@ def on_computed(state: CoreState, result: JobResult) -> None:
         return  # not asked for by this core (a journal edited by hand): nothing to finish
     chunk = parked.chunk
     if isinstance(result, JobFailed):
-        _decide(state, chunk.chunk_id, (R.INFEASIBLE,), detail=f"not checked: {result.detail}")
+        refuse(state, chunk.chunk_id, (R.INFEASIBLE,), detail=f"not checked: {result.detail}")
     elif isinstance(result, MapResult):
         parked.mapped = _mapped(result, chunk, state)
         _evaluate(state, chunk, parked.seen, parked)
@@ -127,7 +129,7 @@ def on_computed(state: CoreState, result: JobResult) -> None:
         parked.checked = (parked.job, result)
         _evaluate(state, chunk, parked.seen, parked)
     else:  # a result of another kind than the job asked for (a journal edited by hand)
-        _decide(state, chunk.chunk_id, (R.INFEASIBLE,), detail="not checked: wrong result")
+        refuse(state, chunk.chunk_id, (R.INFEASIBLE,), detail="not checked: wrong result")
 
 
 def _clearance_or_refusal(result: JobResult) -> ClearanceResult:
@@ -145,7 +147,7 @@ def _ignore_duplicate(state: CoreState, chunk: Chunk) -> None:
         reasons.append(R.OLD_QUEUE_EPOCH)
     elif chunk.queue_epoch > state.epoch:
         reasons.append(R.FUTURE_QUEUE_EPOCH)
-    _log(state, ChunkLine(
+    log_decision(state, ChunkLine(
         t=state.t_ms, chunk_id=chunk.chunk_id, decision=Decision.IGNORED,
         reasons=canonical(reasons), queue_epoch=state.epoch,
         queue_depth=state.queue.pending_rows(state.t),
@@ -171,6 +173,10 @@ def _evaluate(state: CoreState, chunk: Chunk, seen: Seen, parked: Parked | None)
     reasons += context_reasons(chunk, ctx)
     timing = time_verdict(chunk, ctx, t_obs)
     reasons += timing.reasons
+    rtc, rtc_problem = rtc_reasons(
+        chunk, state.observations.prefix_of(chunk.observation_id), t_obs, timing.first_due,
+        timing.late, ctx.policy.max_projection, state.config.limits.arm_mask)
+    reasons += rtc
     mapped = parked.mapped if parked is not None else None
     joints, unmappable = _in_joint_space(state, chunk, reasons, mapped)
     drift, plan = None, None
@@ -201,12 +207,13 @@ def _evaluate(state: CoreState, chunk: Chunk, seen: Seen, parked: Parked | None)
     extras = _measurements(state, t_obs, plan, drift)
     if collision is not None and not collision.clear:
         extras["collision"] = collision_line(collision)
-    if unmappable:
-        extras["detail"] = unmappable
+    if unmappable or rtc_problem:
+        extras["detail"] = unmappable or rtc_problem
     if reasons:
-        _decide(state, chunk.chunk_id, canonical(reasons), **extras)
+        refuse(state, chunk.chunk_id, canonical(reasons), **extras)
+        answered_unusably(state, chunk, reasons)
         return
-    _commit(state, chunk, plan, t_obs, extras)
+    commit(state, chunk, plan, t_obs, extras)
 
 
 def _projection(state: CoreState, draft: MergeDraft, parked: Parked | None) -> Projection | None:
@@ -371,56 +378,3 @@ def _measurements(
     if drift is not None:
         extras["divergence"] = round(drift, _PROJECTION_DIGITS)
     return extras
-
-
-def _commit(
-    state: CoreState, chunk: Chunk, plan: MergePlan | None, t_obs: int | None,
-    extras: dict[str, object],
-) -> None:
-    if plan is None or t_obs is None:  # unreachable: every gate passed, so a plan exists
-        _decide(state, chunk.chunk_id, (R.MALFORMED,), detail="no merge plan")
-        return
-    plan.commit(state.queue)
-    state.observations.answer(chunk.observation_id)
-    state.last_sequence = chunk.sequence
-    state.fallback.clear_debounce()
-    if state.watermarks is not None:
-        state.watermarks.answered()
-        state.watermarks.record_round_trip(state.t - t_obs)
-    decision = _decision_name(plan)
-    _log(state, ChunkLine(
-        t=state.t_ms, chunk_id=chunk.chunk_id, decision=decision, reasons=(),
-        queue_epoch=state.epoch, queue_depth=state.queue.pending_rows(state.t),
-        trimmed=plan.trimmed or None,
-        merge=plan.merge, displaced=plan.displaced or None, **extras,
-    ))
-
-
-def _decision_name(plan: MergePlan) -> Decision:
-    if plan.trimmed:
-        return Decision.TRIMMED
-    if plan.blended:
-        return Decision.BLENDED
-    if plan.displaced and plan.merge is not ReplacementPolicy.APPEND:
-        return Decision.REPLACED
-    return Decision.ACCEPTED
-
-
-def _decide(
-    state: CoreState, chunk_id: str | None, reasons: tuple[R, ...], **extras: object
-) -> None:
-    """Log a refusal and raise the fallback trigger it implies, if any."""
-    _log(state, ChunkLine(
-        t=state.t_ms, chunk_id=chunk_id, decision=Decision.REJECTED, reasons=reasons,
-        queue_epoch=state.epoch, queue_depth=state.queue.pending_rows(state.t), **extras,
-    ))
-    trigger = refusal_trigger(reasons)
-    if trigger is not None:
-        state.fire(trigger)
-
-
-def _log(state: CoreState, line: ChunkLine) -> None:
-    """Log a chunk's decision, and report it to the shell as a typed record."""
-    state.emit(line)
-    state.decided(ChunkDecision(chunk_id=line.chunk_id, decision=line.decision,
-                                reasons=line.reasons))

@@ -16,6 +16,7 @@ import msgspec
 from assurance.envelope import Chunk, MalformedChunk
 from assurance.handshake import OfferIn
 from assurance.reasons import ReasonCode
+from assurance.rtc import RtcPrefix
 from kernel.core.jobs import JobResult
 from skills.phases import TaskPhase
 from skills.task_fsm import Requester
@@ -65,6 +66,8 @@ class StateEvent(msgspec.Struct, frozen=True, kw_only=True):
 class ObservationEvent(msgspec.Struct, frozen=True, kw_only=True):
     t: int
     observation_id: str
+    rtc: RtcPrefix | None = None
+    """The committed prefix the observation carried (real-time chunking), as it was sent."""
 
 
 class PhaseEvent(msgspec.Struct, frozen=True, kw_only=True):

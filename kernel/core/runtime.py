@@ -16,6 +16,7 @@ import msgspec
 
 from assurance.fallback import Mode
 from assurance.reasons import ReasonCode
+from assurance.rtc import Committed, committed_prefix
 from kernel.core import authority
 from kernel.core.admit import admit, on_computed
 from kernel.core.config import CoreConfig
@@ -127,6 +128,14 @@ class Core:
         return CoreStatus(phase=state.task.phase, mode=fallback.mode, cause=fallback.cause,
                           epoch=state.epoch, move_id=motion.move_id, move=motion.move_status,
                           contact=motion.contact.state, parked=len(state.parked))
+
+    def committed(self, t: int, action_dt: int) -> Committed | None:
+        """The queued actions in force at ``t``, ``t + action_dt``, ... (real-time chunking's
+        prefix, :func:`assurance.rtc.committed_prefix`): a question about the future that
+        changes nothing. None in a Cartesian session, whose policy acts in another space."""
+        if self._state.config.cartesian is not None:
+            return None
+        return committed_prefix(self._state.queue, t, action_dt)
 
     def inspect_state(self) -> CoreState:
         """The live, mutable state, for tests and offline tools that check the core's inner

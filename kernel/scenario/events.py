@@ -21,6 +21,7 @@ from assurance.event_chunk import decode_event_chunk
 from assurance.handshake import offer_in
 from assurance.limits import JointLimits
 from assurance.reasons import ReasonCode
+from assurance.rtc import MAX_PREFIX_ROWS, RtcPrefix
 from kernel.config.session import state_vector
 from kernel.core.effects import Motion
 from kernel.core.events import (
@@ -128,7 +129,27 @@ def _residual(raw: Any, where: Where) -> float | None:
 
 
 def _observation(t: int, item: Mapping[str, Any], where: Where, _: JointLimits) -> Event:
-    return ObservationEvent(t=t, observation_id=text(item, "observation_id", where))
+    prefix = None if item.get("rtc") is None else _prefix(mapping(item, "rtc", where),
+                                                           where.at("rtc"))
+    return ObservationEvent(t=t, observation_id=text(item, "observation_id", where), rtc=prefix)
+
+
+def _prefix(item: Mapping[str, Any], where: Where) -> RtcPrefix:
+    """The committed prefix an observation carried: ``actions`` (rows of numbers, one row per
+    action of the grid), ``first_action_time_ns`` and ``action_dt_ns`` (exact), ``delay`` and
+    ``horizon`` (actions)."""
+    rows = item.get("actions")
+    if not isinstance(rows, list) or len(rows) > MAX_PREFIX_ROWS:
+        raise where.at("actions").error(f"must be a list of at most {MAX_PREFIX_ROWS} actions")
+    actions = [vector(row, where.at("actions").at(i), len(rows[0]) if rows else None)
+               for i, row in enumerate(rows)]
+    return RtcPrefix(
+        actions=tuple(tuple(float(v) for v in row) for row in actions),
+        first_due=integer(item, "first_action_time_ns", where, minimum=-MAX_EVENT_NS,
+                          maximum=MAX_EVENT_NS),
+        action_dt=integer(item, "action_dt_ns", where, minimum=1, maximum=MAX_NS),
+        delay=integer(item, "delay", where, minimum=0, maximum=MAX_PREFIX_ROWS),
+        horizon=integer(item, "horizon", where, minimum=0, maximum=MAX_PREFIX_ROWS))
 
 
 def _chunk(t: int, item: Mapping[str, Any], where: Where, _: JointLimits) -> Event:
@@ -232,6 +253,8 @@ def _converted(raw: Any, kind: Any, where: Where) -> Any:
 
 
 MAX_NS = int(CLOCK_OFFSET_MAX_MS) * 1_000_000
+MAX_EVENT_NS = int(EVENT_TIME_MAX_MS) * 1_000_000
+"""The largest event time a file may carry, in ns (a committed prefix's first due time)."""
 """The largest clock offset or round trip a file may carry (docs/manifest.md, "Bounds")."""
 
 

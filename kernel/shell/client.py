@@ -338,8 +338,9 @@ class RobotClient:
             elif isinstance(output, ChunksWaiting):
                 self._intake.wake()
             elif isinstance(output, ObservationDue):
-                sample = gateway.capture_observation()
-                self._apply(protocol.observe(sample, gateway.now_ns(),
+                now = gateway.now_ns()
+                sample = gateway.capture_observation(output.prefix_grid_ns, now)
+                self._apply(protocol.observe(sample, now,
                                              gateway.client_side_hello().queue_epoch))
             elif isinstance(output, Ended):
                 self._end_with(LinkEnded(output.bye, output.detail))

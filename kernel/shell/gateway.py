@@ -16,6 +16,7 @@ driver answered.
 
 from __future__ import annotations
 
+import dataclasses
 from collections import deque
 from collections.abc import Callable
 from typing import Any, TypeVar
@@ -119,8 +120,14 @@ class CoreGateway:
     def client_side_hello(self) -> ClientHello:
         return self.core.config.client.hello(self.core.status().epoch)
 
-    def capture_observation(self) -> RobotSample:
-        return self.robot
+    def capture_observation(self, prefix_grid_ns: int | None = None,
+                            at_ns: int | None = None) -> RobotSample:
+        """The robot as last measured; with ``prefix_grid_ns``, and the actions committed from
+        ``at_ns`` (the observation's time; default now) on that grid."""
+        if prefix_grid_ns is None:
+            return self.robot
+        at = self.now_ns() if at_ns is None else at_ns
+        return dataclasses.replace(self.robot, committed=self.core.committed(at, prefix_grid_ns))
 
     def observe_robot(self, q: np.ndarray, qd: np.ndarray, wrench: np.ndarray,
                       gripper: float | None) -> None:

@@ -35,6 +35,7 @@ from kernel.core import events as ev
 from kernel.core.effects import ChunkDecision, DecisionRecord
 from kernel.shell.link_protocol_budget import ChunkQueue, RequestWindow, TokenBucket
 from kernel.shell.link_protocol_timers import ClockExchange, Liveness
+from kernel.shell.link_rtc import PrefixPlanner
 from kernel.shell.link_types import LinkCounters, LinkTiming, RobotSample
 from kernel.wire import ByeReason, ClockSample, MessageType, ProtocolViolation
 
@@ -75,7 +76,10 @@ class ChunksWaiting:
 @dataclass(frozen=True, slots=True)
 class ObservationDue:
     """The core asked for an inference and the window of requests in flight has room:
-    capture the robot now and call :meth:`LinkProtocol.observe`."""
+    capture the robot now (with the committed actions on ``prefix_grid_ns``'s grid, when
+    set: real-time chunking) and call :meth:`LinkProtocol.observe`."""
+
+    prefix_grid_ns: int | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -165,6 +169,7 @@ class WardenProtocol:
         self._frames = TokenBucket(timing.max_frames_per_s)
         self._window = RequestWindow(timing.max_requests_in_flight, timing.request_timeout_ns)
         self._chunks = ChunkQueue(timing.max_chunks_per_s, self._window, counters)
+        self._rtc = PrefixPlanner()
         self._clock = ClockExchange(timing.clock_burst, timing.clock_ping_timeout_ns,
                                     timing.clock_refresh_ns)
         self._liveness = Liveness(timing.heartbeat_interval_ns, timing.heartbeat_timeout_ns)
@@ -187,6 +192,7 @@ class WardenProtocol:
         self._offer = None
         self._window.clear()
         self._chunks.clear()
+        self._rtc.begin(offered=False, chunk_horizon=0)
         self._clock.begin()
         self._liveness.begin(now_ns)
         self._handshake_by = now_ns + self.timing.handshake_timeout_ns
@@ -273,6 +279,7 @@ class WardenProtocol:
             if self._offered:
                 return []  # only the first offer of a connection is decided
             self._offered, self._offer = True, message.offer
+            self._rtc.begin(message.offer.rtc, message.offer.chunk_horizon)
             return self._offer_arrived()
         if isinstance(message, wire.Bye):
             self.counters.byes_received += 1
@@ -353,7 +360,7 @@ class WardenProtocol:
         self.counters.requests_expired = self._window.expired
         if room:
             self._wanted = self._held = False
-            return [ObservationDue()]
+            return [ObservationDue(self._rtc.grid_ns())]
         if not self._held:  # enough in flight: sent when one is answered or expires
             self._held = True
             self.counters.requests_waited += 1
@@ -361,14 +368,16 @@ class WardenProtocol:
 
     def observe(self, sample: RobotSample, now_ns: int, queue_epoch: int) -> list[Output]:
         observation_id = f"{self.client_id}/{next(self._observation_ids)}"
+        prefix = self._rtc.prefix(sample.committed, now_ns)
         frame = self._send(wire.Observation(
             observation_id=observation_id, t_event=now_ns, queue_epoch=queue_epoch,
             task_phase=str(sample.task_phase), q=wire.vector_payload(sample.q),
             qd=wire.optional_payload(sample.qd), wrench=wire.optional_payload(sample.wrench),
-            gripper=sample.gripper))
+            gripper=sample.gripper, rtc=None if prefix is None else wire.prefix_payload(prefix)))
         self._window.sent(observation_id, now_ns)
         self.counters.observations_sent += 1
-        return [Feed(ev.ObservationEvent(t=now_ns, observation_id=observation_id)), frame]
+        return [Feed(ev.ObservationEvent(t=now_ns, observation_id=observation_id, rtc=prefix)),
+                frame]
 
     @property
     def chunks_waiting(self) -> int:
@@ -384,7 +393,9 @@ class WardenProtocol:
             return []
         event = self.chunk_event(frame, now_ns)
         chunk = event.chunk  # a fed chunk answers its request, whatever the core decides
-        self._window.answered(chunk.observation_id if isinstance(chunk, Chunk) else None)
+        sent = self._window.answered(chunk.observation_id if isinstance(chunk, Chunk) else None)
+        if sent is not None and isinstance(chunk, Chunk):
+            self._rtc.answered(now_ns - sent, chunk.time("action_dt"))
         return [Feed(event), *self._observation_due(now_ns)]
 
     def chunk_event(self, frame: wire.Frame, now_ns: int) -> ev.ChunkEvent:

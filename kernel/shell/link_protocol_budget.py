@@ -98,17 +98,21 @@ class RequestWindow:
         self._claimed.add(observation_id)
         return True
 
-    def answered(self, observation_id: str | None) -> None:
-        """A chunk citing ``observation_id`` was fed (admitted or not). One whose observation
-        cannot be read (a malformed chunk: None) answers the oldest request: servers answer
-        in order, and a request must not stay blocked by an answer that was unreadable."""
+    def answered(self, observation_id: str | None) -> int | None:
+        """A chunk citing ``observation_id`` was fed (admitted or not): when that observation
+        was sent (None: it was not in flight). One whose observation cannot be read (a
+        malformed chunk: None) answers the oldest request: servers answer in order, and a
+        request must not stay blocked by an answer that was unreadable."""
         if observation_id is None:
             if not self._sent:
-                return
-            observation_id, _ = self._sent.popitem(last=False)
-        elif self._sent.pop(observation_id, None) is None:
-            return
+                return None
+            observation_id, sent = self._sent.popitem(last=False)
+        else:
+            sent = self._sent.pop(observation_id, None)
+            if sent is None:
+                return None
         self._claimed.discard(observation_id)
+        return sent
 
     def clear(self) -> None:
         """A new session: nothing of the old one is in flight."""

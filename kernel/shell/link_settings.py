@@ -107,6 +107,8 @@ class PolicySettings(msgspec.Struct, frozen=True, kw_only=True):
     chunk_horizon: Annotated[int, Meta(ge=1, le=CHUNK_HORIZON_MAX)] = 20
     action_dt_ms: Annotated[float, Meta(ge=PERIOD_MIN_MS, le=PERIOD_MAX_MS)] = 20.0
     noise_rad: Annotated[float, Meta(ge=0.0, le=NOISE_MAX_RAD)] = 0.0005
+    rtc: bool = False
+    """The reference server offers real-time chunking (assurance/rtc.py)."""
     clock_offset_ms: Annotated[float, Meta(ge=-CLOCK_OFFSET_MAX_MS, le=CLOCK_OFFSET_MAX_MS)] = 0.0
     # What one policy peer may cost (kernel/shell/link_budget.py). A frame rate above
     # 100 000/s or a chunk rate above 10 000/s is no limit at the GIL's pace.

@@ -12,6 +12,7 @@ import numpy as np
 
 from assurance.clock import ms_to_ns
 from assurance.handshake import ClientHello
+from assurance.rtc import Committed
 from kernel import wire
 from kernel.core import events as ev
 from kernel.core.effects import Step
@@ -28,6 +29,9 @@ class RobotSample:
     qd: np.ndarray | None = None
     wrench: np.ndarray | None = None
     gripper: float | None = None
+    committed: Committed | None = None
+    """Real-time chunking: the committed actions from the one in force now on, one per step of
+    the grid the link asked for (None: not asked for)."""
 
 
 class Gateway(Protocol):
@@ -37,7 +41,8 @@ class Gateway(Protocol):
     to the core, return what it produced. ``on``: have the core's effects and decision records
     (:class:`~kernel.core.effects.ChunkDecision`) of a type handed to a
     handler. ``client_side_hello``: this client's handshake side with the core's current queue
-    epoch. ``capture_observation``: the robot, measured now.
+    epoch. ``capture_observation``: the robot, measured now (with ``prefix_grid_ns``, and
+    the committed actions on that grid).
     """
 
     def now_ns(self) -> int: ...
@@ -48,7 +53,8 @@ class Gateway(Protocol):
 
     def client_side_hello(self) -> ClientHello: ...
 
-    def capture_observation(self) -> RobotSample: ...
+    def capture_observation(self, prefix_grid_ns: int | None = None,
+                            at_ns: int | None = None) -> RobotSample: ...
 
 
 class LaunchedServer(Protocol):

@@ -144,8 +144,9 @@ class LocalPolicyLink:
             elif isinstance(output, ChunksWaiting):  # admitted at once: no control period
                 self._carry(protocol.next_chunk(gateway.now_ns()))
             elif isinstance(output, ObservationDue):
-                self._carry(protocol.observe(gateway.capture_observation(), gateway.now_ns(),
-                                             gateway.client_side_hello().queue_epoch))
+                now = gateway.now_ns()
+                sample = gateway.capture_observation(output.prefix_grid_ns, now)
+                self._carry(protocol.observe(sample, now, gateway.client_side_hello().queue_epoch))
             elif isinstance(output, Ended):  # a refused handshake: no session, no chunks
                 self.ended = output.detail
 

@@ -115,6 +115,7 @@ def server_args(manifest: Manifest, goal: np.ndarray, host: str, port: int) -> l
         "--calibration-epoch", str(offer.calibration_epoch),
         "--protocol", f"{offer.protocol[0]},{offer.protocol[1]}",
         "--replacement-policy", "blend",
+        *(["--rtc"] if settings.rtc else []),
     ]
 
 

@@ -61,6 +61,8 @@ def parse_args(argv: list[str] | None = None) -> ServerConfig:
     p.add_argument("--lead-ms", type=float, default=None)
     p.add_argument("--replacement-policy", choices=[r.value for r in ReplacementPolicy],
                    default=d.replacement_policy.value)
+    p.add_argument("--rtc", action="store_true",
+                   help="offer real-time chunking: honour the committed prefix observations carry")
     p.add_argument("--clock-offset-ms", type=float, default=0.0)
     p.add_argument("--seed", type=int, default=d.seed)
     p.add_argument("--heartbeat-interval", type=float, default=d.heartbeat_interval_s)
@@ -83,6 +85,7 @@ def parse_args(argv: list[str] | None = None) -> ServerConfig:
             max_acceleration=a.max_acceleration,
             noise_std=a.noise, latency=LatencyModel(a.latency_median_ms, a.latency_p95_ms),
             lead_ms=a.lead_ms, replacement_policy=ReplacementPolicy(a.replacement_policy),
+            rtc=a.rtc,
             clock_offset_ns=round(a.clock_offset_ms * 1e6), seed=a.seed,
             heartbeat_interval_s=a.heartbeat_interval, heartbeat_timeout_s=a.heartbeat_timeout,
             faults=FaultConfig.parse(a.fault),

@@ -55,6 +55,10 @@ class ServerConfig:
     lead_ms: float | None = None
     """First action this long after the observation; default: latency p95 + 3 ms."""
     replacement_policy: ReplacementPolicy = ReplacementPolicy.REPLACE
+    rtc: bool = False
+    """Offer real-time chunking: a chunk answering an observation that carries the committed
+    prefix starts at the observation's time, repeats the prefix's first ``delay`` actions and
+    plans on from the last of them."""
     max_observation_age_ms: float = 80.0
     max_action_age_ms: float = 200.0
     seed: int = 0
@@ -74,7 +78,7 @@ class ServerConfig:
             action_units=self.action_units, action_frame=self.action_frame,
             chunk_horizon=self.horizon, protocol=self.protocol, skill=self.skill,
             skill_version=self.skill_version, controller_mode=self.controller_mode,
-            calibration_epoch=self.calibration_epoch, queue_epoch=queue_epoch,
+            calibration_epoch=self.calibration_epoch, queue_epoch=queue_epoch, rtc=self.rtc,
         )
 
     def chunk_source(self) -> ChunkSource:

@@ -88,6 +88,7 @@ class ChunkEnvelope(msgspec.Struct, frozen=True, kw_only=True):
     phase_markers: tuple[ActionIndex, ...] = ()
     action_units: str | None = None
     action_frame: str | None = None
+    rtc_delay: int | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -129,6 +130,8 @@ class Proposal:
     inference_start: int | None = None
     inference_end: int | None = None
     server_send: int | None = None
+    rtc_delay: int | None = None
+    """Its first ``rtc_delay`` actions repeat the committed prefix (real-time chunking)."""
 
 
 _ENCODER = msgspec.msgpack.Encoder()
@@ -157,6 +160,7 @@ def chunk_envelope(source: ChunkSource, proposal: Proposal) -> ChunkEnvelope:
         state_fingerprint=state_fingerprint(proposal.observed_q),
         replacement_policy=source.replacement_policy, fallback_id=source.fallback_id,
         action_units=source.action_units, action_frame=source.action_frame,
+        rtc_delay=proposal.rtc_delay,
     )
 
 

@@ -54,6 +54,8 @@ class HandshakeOffer(msgspec.Struct, frozen=True, kw_only=True):
     calibration_epoch: int | str | None = None
     queue_epoch: int | None = None
     reason_codes: tuple[str, ...] | None = None
+    rtc: bool = False
+    """This server honours the committed prefix an observation carries (real-time chunking)."""
 
 
 class HandshakeDecision(msgspec.Struct, frozen=True, kw_only=True):

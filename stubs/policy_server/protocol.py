@@ -124,6 +124,23 @@ class ClockReport(msgspec.Struct, frozen=True, kw_only=True):
     round_trip: Duration
 
 
+PrefixLength = Annotated[int, msgspec.Meta(ge=0, le=1024)]
+
+
+class Prefix(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    """Real-time chunking: what the robot committed from the action in force at the
+    observation's time on (rows × action_dim, due at ``first_action_time + k * action_dt``),
+    the inference delay and the execution horizon in actions. Sent only to a server that
+    offered it."""
+
+    actions: ArrayPayload
+    first_action_time: Time
+    """Client clock: when ``actions[0]`` was due."""
+    action_dt: Annotated[int, msgspec.Meta(gt=0, le=INT64_MAX)]
+    delay: PrefixLength
+    horizon: PrefixLength
+
+
 class Observation(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     """Only what a robot measures: an unknown field (a goal, a target) is a violation."""
 
@@ -135,6 +152,7 @@ class Observation(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     qd: ArrayPayload | None = None
     wrench: ArrayPayload | None = None
     gripper: float | None = None
+    rtc: Prefix | None = None
 
 
 class Heartbeat(msgspec.Struct, frozen=True, kw_only=True):
@@ -246,6 +264,25 @@ def payload_vector(payload: ArrayPayload, length: int) -> np.ndarray:
     if len(payload.data) != dtype.itemsize * length:
         raise ProtocolViolation("vector bytes do not match dtype and shape")
     return np.frombuffer(payload.data, dtype=dtype).astype(np.float64)
+
+
+def payload_rows(payload: ArrayPayload, width: int, most: int) -> np.ndarray:
+    """Rows of ``width`` floats (at most ``most`` of them) as float64.
+
+    Raises:
+        ProtocolViolation: another dtype or shape, or bytes that do not fill it.
+    """
+    try:
+        dtype = np.dtype(payload.dtype)
+    except (TypeError, ValueError, SyntaxError) as error:
+        raise ProtocolViolation(f"unknown dtype {payload.dtype[:20]!r}") from error
+    shape = payload.shape
+    if dtype.kind != "f" or len(shape) != 2 or shape[1] != width or not 0 <= shape[0] <= most:
+        raise ProtocolViolation(f"expected up to {most} rows of {width} floats, got "
+                                f"{payload.dtype[:20]} {shape[:4]}")
+    if len(payload.data) != dtype.itemsize * shape[0] * width:
+        raise ProtocolViolation("array bytes do not match dtype and shape")
+    return np.frombuffer(payload.data, dtype=dtype).astype(np.float64).reshape(shape)
 
 
 def _short(error: Exception) -> str:

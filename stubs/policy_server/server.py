@@ -65,6 +65,7 @@ from stubs.policy_server.protocol import (
     message_type,
     payload_vector,
 )
+from stubs.policy_server.rtc import conditioned_actions
 
 
 @dataclass(slots=True)
@@ -311,7 +312,16 @@ class _Connection:
         t_obs = t_arrival if self.client_offset is None else (
             observation.t_event - self.client_offset)
         qd = payload_vector(observation.qd, len(cfg.goal)) if observation.qd else None
-        actions = self.server.policy.actions(q, cfg.lead_ns / 1e9, self.server.rng, qd)
+        # Real-time chunking needs the client's clock (its first action is the prefix's, a
+        # client time) and joint actions (a Cartesian session's are not the committed rows).
+        conditioned = None if self.client_offset is None or self.server.output is not None else (
+            conditioned_actions(cfg, self.server.policy, self.server.rng, observation.rtc, qd,
+                                self.client_offset))
+        if conditioned is None:
+            actions = self.server.policy.actions(q, cfg.lead_ns / 1e9, self.server.rng, qd)
+            first, delay = t_obs + cfg.lead_ns, None
+        else:
+            actions, delay, first = conditioned
         if self.server.output is not None:
             actions = self.server.output(q, actions)
         if plan.nonfinite:
@@ -327,9 +337,9 @@ class _Connection:
             chunk_id=f"{cfg.server_id}-e{epoch}-s{sequence}", sequence=sequence,
             queue_epoch=epoch, task_phase=observation.task_phase,
             observation_id=observation.observation_id, observed_q=q, actions=actions,
-            first_action_time=t_obs + cfg.lead_ns, observation_event_time=t_obs,
+            first_action_time=first, observation_event_time=t_obs,
             observation_arrival_time=t_arrival, inference_start=t_start, inference_end=now,
-            server_send=now,
+            server_send=now, rtc_delay=delay,
         ))
 
     async def _deliver(self, chunk: ChunkEnvelope, plan: ChunkFaults) -> None:

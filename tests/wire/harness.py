@@ -73,9 +73,14 @@ class LoopbackGateway:
     def client_side_hello(self) -> ClientHello:
         return self.config.client.hello(self.core.status().epoch)
 
-    def capture_observation(self) -> RobotSample:
+    def capture_observation(self, prefix_grid_ns: int | None = None,
+                            at_ns: int | None = None) -> RobotSample:
+        committed = None
+        if prefix_grid_ns is not None:  # as kernel/shell/gateway.py does
+            at = self.now_ns() if at_ns is None else at_ns
+            committed = self.core.committed(at, prefix_grid_ns)
         return RobotSample(q=self.q.copy(), task_phase=str(self.core.status().phase),
-                           qd=np.zeros_like(self.q), wrench=np.zeros(6))
+                           qd=np.zeros_like(self.q), wrench=np.zeros(6), committed=committed)
 
     # -- the shell's control loop --------------------------------------------------------------
 

@@ -83,7 +83,8 @@ async def test_server_absent_at_first_is_retried_with_backoff() -> None:
 
 
 class _BrokenGateway(LoopbackGateway):
-    def capture_observation(self) -> RobotSample:
+    def capture_observation(self, prefix_grid_ns: int | None = None,
+                            at_ns: int | None = None) -> RobotSample:
         raise RuntimeError("the robot state is unreadable")
 
 

@@ -11,6 +11,7 @@ from tools.scenarios import (
     catalog_network,
     catalog_queue,
     catalog_recovery,
+    catalog_rtc,
     catalog_seed,
     catalog_time,
 )
@@ -19,6 +20,7 @@ from tools.scenarios.base import dumps
 MODULES = (
     catalog_seed, catalog_identity, catalog_context, catalog_time, catalog_queue,
     catalog_authority, catalog_network, catalog_recovery, catalog_cartesian, catalog_collision,
+    catalog_rtc,
 )
 
 
