@@ -1,7 +1,8 @@
 """The seams between chunks with and without real-time chunking, in one run.
 
-A real core and warden's real client talk to the reference policy server (in process, over
-loopback websockets) that moves the arm toward a goal with the shipped cell's policy model:
+A real core (the wire tests' loopback gateway, tests/wire/harness.py) and warden's real client
+talk to the reference policy server (in process, over loopback websockets) that moves the arm
+toward a goal with the shipped cell's policy model:
 0.25 rad/s, 3 rad/s² ramps, 0.5 mrad of noise, 20-action chunks every 20 ms, 30 ms median and
 60 ms p95 inference. The arm follows every setpoint exactly (2 ms ticks). The same run is made
 twice, the server offering real-time chunking or not (docs/protocol.md, "Real-time chunking").
@@ -21,13 +22,9 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import dataclasses
 import sys
-import time
 from collections import Counter, deque
-from collections.abc import Callable
 from pathlib import Path
-from typing import Any
 
 if __package__ in (None, ""):  # run as a script: make the repository importable
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -35,83 +32,48 @@ if __package__ in (None, ""):  # run as a script: make the repository importable
 import numpy as np
 
 from assurance.envelope import Chunk
-from assurance.handshake import ClientHello
-from kernel.config.build import build_config
-from kernel.core.effects import Setpoint, Step
-from kernel.core.events import ChunkEvent, Event, StateEvent, TickEvent
+from kernel.core.effects import Step
+from kernel.core.events import ChunkEvent, Event
 from kernel.core.lines import ChunkLine
-from kernel.core.runtime import Core
-from kernel.scenario.fields import Where
 from kernel.shell.client import RobotClient
 from kernel.shell.link_settings import PolicySettings
-from kernel.shell.link_types import ClientConfig, RobotSample
+from kernel.shell.link_types import ClientConfig
 from kernel.summary import ADMITTED
 from stubs.policy_server import LatencyModel, PolicyServer, ServerConfig
-from tools.scenarios.base import Q0, ScenarioSpec
+from tests.wire.harness import LoopbackGateway
+from tools.scenarios.base import Q0
 
 DT_NS = 20_000_000
 GOAL = tuple(q + d for q, d in zip(Q0, (0.6, -0.5, 0.5, -0.4, 0.3, 0.6), strict=True))
 TICK_S = 0.002
 
 
-class _SeamGateway:
-    """A real core; each chunk's admission is measured against what was committed before."""
+class _SeamGateway(LoopbackGateway):
+    """The wire tests' gateway (a real core, an arm that follows every command); each chunk's
+    admission is measured against what was committed before it."""
 
     def __init__(self) -> None:
-        spec = ScenarioSpec(name="seams", description="", events=[], until=0, expect=[],
-                            phase="FREE_SPACE",
-                            timing={"low_watermark_ms": 150, "high_watermark_ms": 400,
-                                    "request_retry_ms": 40})
-        config = build_config(spec.document(), Where("seams", ""))
-        self.core = Core(dataclasses.replace(config, initial_session=None))
-        self.q = self.core.config.initial_q.copy()
+        super().__init__("FREE_SPACE", {"request_retry_ms": 40})
         self.steps: list[float] = []
         self.jerks: list[float] = []
         self.admitted = self.refused = self.conditioned = 0
-        self.handlers: dict[type, list[Callable[[Any], None]]] = {}
         self.history: deque[tuple[int, np.ndarray]] = deque(maxlen=200)
         self.reasons: Counter[str] = Counter()
-
-    def now_ns(self) -> int:
-        return time.monotonic_ns()
 
     def feed(self, event: Event) -> Step:
         chunk = event.chunk if isinstance(event, ChunkEvent) else None
         before = self._ahead(event.t) if isinstance(chunk, Chunk) else None
-        step = self.core.step(event)
+        step = super().feed(event)
         if before is not None and isinstance(chunk, Chunk):
             self._measure(event.t, chunk, before, step)
-        for record in (*step.decisions, *step.effects):
-            for handler in self.handlers.get(type(record), ()):
-                handler(record)
         return step
 
-    def on(self, kind: type, handler: Callable[[Any], None]) -> None:
-        self.handlers.setdefault(kind, []).append(handler)
-
-    def client_side_hello(self) -> ClientHello:
-        return self.core.config.client.hello(self.core.status().epoch)
-
-    def capture_observation(self, prefix_grid_ns: int | None = None,
-                            at_ns: int | None = None) -> RobotSample:
-        committed = None
-        if prefix_grid_ns is not None:
-            at = self.now_ns() if at_ns is None else at_ns
-            committed = self.core.committed(at, prefix_grid_ns)
-        return RobotSample(q=self.q.copy(), task_phase="FREE_SPACE", qd=np.zeros(6),
-                           wrench=np.zeros(6), committed=committed)
-
-    async def run_ticks(self, stop: asyncio.Event) -> None:
-        while not stop.is_set():
-            now = self.now_ns()
-            motion = self.feed(TickEvent(t=now)).motion
-            value = self._value(now)
-            if value is not None:
-                self.history.append((now, value))
-            if isinstance(motion, Setpoint):
-                self.q = np.array(motion.q)
-                self.feed(StateEvent(t=self.now_ns(), q=motion.q))
-            await asyncio.sleep(TICK_S)
+    def tick(self) -> None:
+        super().tick()
+        now = self.now_ns()
+        value = self._value(now)
+        if value is not None:
+            self.history.append((now, value))
 
     def _value(self, t: int) -> np.ndarray | None:
         """The committed action in force at ``t`` (now or later), or None."""
@@ -160,7 +122,7 @@ async def _run(rtc: bool, seconds: float) -> _SeamGateway:
         stop = asyncio.Event()
         async with asyncio.TaskGroup() as tasks:
             tasks.create_task(client.run())
-            tasks.create_task(gateway.run_ticks(stop))
+            tasks.create_task(gateway.run_ticks(stop, period_s=TICK_S))
             await asyncio.sleep(seconds)
             stop.set()
             client.stop()

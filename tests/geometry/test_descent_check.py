@@ -14,23 +14,18 @@ from typing import Any
 import numpy as np
 import pytest
 
-from kernel.config.build import build_config
-from kernel.core.effects import Compute, Setpoint
 from kernel.core.events import (
     ComputedEvent,
     GripperEvent,
     InsertEvent,
     StateEvent,
-    TickEvent,
 )
-from kernel.core.jobs import ClearanceJob, JobFailed, run_job
+from kernel.core.jobs import JobFailed
 from kernel.core.lines import MotionLine
-from kernel.core.runtime import Core
-from kernel.scenario.fields import Where
 from skills.contact import ContactState, Descent
+from tests.geometry.job_cell import JobCell
 from tests.geometry.oracle import MujocoOracle
-from tools.scenarios.base import ScenarioSpec, session
-from tools.scenarios.catalog_collision import FIXTURE_START, GEOMETRY, TABLE_START, _robot
+from tools.scenarios.catalog_collision import FIXTURE_START, GEOMETRY, TABLE_START
 
 PHASE = "CONTACT"
 HOLE_XY = (-0.55, -0.15)
@@ -41,47 +36,19 @@ half-extent 30 mm along the tool's axis)."""
 FINE_M = 0.001
 
 
-class Cell:
+class Cell(JobCell):
     """A core in CONTACT holding the peg, whose jobs wait until the test answers them."""
 
     def __init__(self, start: list[float]) -> None:
-        spec = ScenarioSpec(name="descent", description="", events=[], until=0, expect=[],
-                            robot=_robot(), geometry=GEOMETRY,
-                            phases={PHASE: {"executor": "contact"}},
-                            session=session(phase=PHASE, state=list(start)))
-        self.core = Core(build_config(spec.document(), Where("descent", "")))
-        self.t = 0
-        self.asked: list[ClearanceJob] = []
-        self.lines: list[Any] = []
-        self.last: Any = None
+        super().__init__(PHASE, "contact", start)
         self.step(GripperEvent(t=0, opening=0.0))
         self.step(StateEvent(t=0, q=tuple(start)))
         self.tick(5)
-
-    def step(self, event: Any) -> None:
-        step = self.core.step(event)
-        self.lines += step.lines
-        self.asked += [e.job for e in step.effects
-                       if isinstance(e, Compute) and isinstance(e.job, ClearanceJob)]
-        if step.motion is not None:
-            self.last = step.motion
-
-    def tick(self, n: int = 1) -> None:
-        for _ in range(n):
-            if isinstance(self.last, Setpoint):  # an arm that follows every setpoint
-                self.step(StateEvent(t=self.t, q=self.last.q))
-            self.step(TickEvent(t=self.t))
-            self.t += self.core.config.control_period_ns
 
     def insert(self, xy: tuple[float, float], z_end: float) -> None:
         rotation = self.tcp().rotation
         self.step(InsertEvent(t=self.t, xy=xy, z_end=z_end,
                               rotation=tuple(rotation.ravel().tolist())))
-
-    def answer(self, job: ClearanceJob) -> None:
-        config = self.core.config
-        self.step(ComputedEvent(t=self.t, result=run_job(job, config.limits, None,
-                                                         config.collision)))
 
     def tcp(self) -> Any:
         kinematics = self.core.config.kinematics

@@ -8,62 +8,23 @@ the arm still until the cycle's time ran out.
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 
-from kernel.config.build import build_config
-from kernel.core.effects import Compute, Setpoint
-from kernel.core.events import ComputedEvent, MoveEvent, StateEvent, TickEvent
-from kernel.core.jobs import ClearanceJob, run_job
+from kernel.core.events import MoveEvent, StateEvent
 from kernel.core.lines import MotionLine
-from kernel.core.runtime import Core
-from kernel.scenario.fields import Where
 from skills.planner import MoveStatus
-from tools.scenarios.base import ScenarioSpec, session
-from tools.scenarios.catalog_collision import GEOMETRY, WRIST_START, _robot
+from tests.geometry.job_cell import JobCell
+from tools.scenarios.catalog_collision import WRIST_START
 
 HIGH = [0.0414, -1.7316, 2.0356, -1.8748, -1.5708, 0.0414]
 """The TCP 20 cm above the table, far from every solid."""
 
 
-def _core() -> Core:
-    spec = ScenarioSpec(name="moves", description="", events=[], until=0, expect=[],
-                        robot=_robot(), geometry=GEOMETRY,
-                        phases={"FREE_SPACE": {"executor": "planner"}},
-                        session=session(phase="FREE_SPACE", state=list(HIGH)))
-    return Core(build_config(spec.document(), Where("moves", "")))
-
-
-class Cell:
-    """A core whose jobs wait until the test answers them."""
+class Cell(JobCell):
+    """The planner owns FREE_SPACE; the arm starts high, far from every solid."""
 
     def __init__(self) -> None:
-        self.core = _core()
-        self.t = 0
-        self.asked: list[ClearanceJob] = []
-        self.lines: list[Any] = []
-        self.last: Any = None
-
-    def step(self, event: Any) -> None:
-        step = self.core.step(event)
-        self.lines += step.lines
-        self.asked += [e.job for e in step.effects
-                       if isinstance(e, Compute) and isinstance(e.job, ClearanceJob)]
-        if step.motion is not None:
-            self.last = step.motion
-
-    def tick(self, n: int = 1) -> None:
-        for _ in range(n):
-            if isinstance(self.last, Setpoint):  # an arm that follows every setpoint
-                self.step(StateEvent(t=self.t, q=self.last.q))
-            self.step(TickEvent(t=self.t))
-            self.t += self.core.config.control_period_ns
-
-    def answer(self, job: ClearanceJob) -> None:
-        config = self.core.config
-        self.step(ComputedEvent(t=self.t, result=run_job(job, config.limits, None,
-                                                         config.collision)))
+        super().__init__("FREE_SPACE", "planner", HIGH)
 
 
 def test_a_new_move_is_checked_and_played_though_the_last_ones_check_answers_late() -> None:
