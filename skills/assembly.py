@@ -20,7 +20,7 @@ from typing import Protocol
 import numpy as np
 
 from assurance.fallback import Mode
-from skills.contact import ContactState
+from skills.contact import ContactState, DescentStatus
 from skills.evaluator import Evaluator, InsertionEvidence, InsertionVerdict
 from skills.layout import CellLayout
 from skills.phases import TaskPhase
@@ -90,6 +90,8 @@ class CoreView(Protocol):
     def move(self) -> MoveStatus: ...
     @property
     def contact(self) -> ContactState: ...
+    @property
+    def descent(self) -> DescentStatus: ...
 
 
 @dataclass(frozen=True, slots=True)
@@ -247,6 +249,8 @@ class AssemblyRunner:
         if phase is P.PRE_CONTACT:  # a hold interrupted contact: the insertion is not resumed
             return self._fail("insertion interrupted by a fallback", s, mode)
         contact = self._view.contact if self._view is not None else ContactState.IDLE
+        if self._view is not None and self._view.descent is DescentStatus.REFUSED:
+            return self._fail("the descent was refused (its motion line says why)", s, mode)
         if contact is ContactState.RETREATED and mode is Mode.RUNNING:
             return self._fail("contact anomaly: force-aware retreat", s, mode)
         timed_out = self._elapsed(s) > self.timing.insert_timeout_s

@@ -42,6 +42,21 @@ _INERTIA = (2.0, 2.0, 0.6, 0.15, 0.15, 0.12)
 """kg·m², about what each joint of a UR5e-class arm carries: damping is critical for it."""
 
 
+class DescentStatus(StrEnum):
+    """What became of the last descent an ``insert`` asked for (the task reads it)."""
+
+    NONE = "none"
+    CHECKING = "checking"
+    """Its path's clearance is being checked; the contact owner holds meanwhile."""
+    STARTED = "started"
+    REFUSED = "refused"
+
+
+MAX_DESCENT_M = 0.5
+"""The longest descent a path check looks at: an insertion is centimetres; further is a
+mistake, refused before any work."""
+
+
 class NoKinematics(ValueError):
     """A Cartesian descent was asked of a contact owner that has no kinematic model."""
 
@@ -102,6 +117,9 @@ class ContactOwner:
         self._dwell_until = 0
         self._softness = 1.0
         """The fraction of the law's stiffness in force (1 but in a relaxed hold)."""
+        self.generation = 0
+        """Counts every change of what the law does (a start, a hold, a retreat, a relaxed
+        hold, a new cycle): an answer about one of them is stale once it has moved on."""
 
     def start(self, q: np.ndarray, xy: np.ndarray, z_end: float, rotation: np.ndarray) -> None:
         """Begin a descent from the tool's height at ``q`` down to ``z_end``, along the vertical
@@ -118,6 +136,7 @@ class ContactOwner:
         self._z_end = float(z_end)
         self._softness = 1.0
         self.state = ContactState.DESCENDING
+        self.generation += 1
 
     def begin(self, descent: Descent) -> None:
         """:meth:`start` the descent an ``insert`` asked for."""
@@ -131,10 +150,14 @@ class ContactOwner:
 
         Raises:
             NoKinematics: there is no kinematic model to descend with.
+            ValueError: the descent is longer than :data:`MAX_DESCENT_M`.
         """
         kin = self._kinematics()
         current = np.asarray(descent.q, dtype=float).copy()
         z_start = float(kin.forward(current).position[2])
+        if not abs(z_start - descent.z_end) <= MAX_DESCENT_M:
+            raise ValueError(f"a descent from {z_start:.3f} m to {descent.z_end:.3f} m is longer "
+                             f"than {MAX_DESCENT_M} m")
         count = max(1, math.ceil(max(z_start - descent.z_end, 0.0) / step_m))
         rows = np.empty((count, current.shape[0]))
         for k in range(count):
@@ -147,6 +170,7 @@ class ContactOwner:
         """A new cycle: nothing to descend, hold or retreat from."""
         self._softness = 1.0
         self.state = ContactState.IDLE
+        self.generation += 1
 
     def relax(self, q: np.ndarray, factor: float) -> None:
         """Stop pressing: hold ``q`` (where the tool is) compliantly, the stiffness scaled by
@@ -157,11 +181,13 @@ class ContactOwner:
         self._q = np.asarray(q, dtype=float).copy()
         self._softness = float(factor)
         self.state = ContactState.RELAXED
+        self.generation += 1
 
     def hold_at(self, q: np.ndarray) -> None:
         """Compliantly hold ``q`` (contact owned without a descent to run)."""
         self._q = np.asarray(q, dtype=float).copy()
         self.state = ContactState.HOLDING
+        self.generation += 1
 
     def begin_retreat(self, q: np.ndarray) -> None:
         """Force-aware retreat from wherever the tool is now back up to the start height (2 cm
@@ -170,6 +196,7 @@ class ContactOwner:
             return
         self._softness = 1.0
         self._q = np.asarray(q, dtype=float).copy()
+        self.generation += 1
         if self.kin is None:
             self.state = ContactState.RETREATED
             return

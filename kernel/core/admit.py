@@ -24,7 +24,7 @@ import numpy as np
 from assurance.cartesian import Mapped
 from assurance.clock import ns_to_ms
 from assurance.envelope import Chunk, MalformedChunk
-from assurance.fallback import IRRELEVANT
+from assurance.fallback import IRRELEVANT, Mode
 from assurance.gates import (
     AdmissionContext,
     Timing,
@@ -111,7 +111,8 @@ def on_computed(state: CoreState, result: JobResult) -> None:
         move_checked(state.motion, _clearance_or_refusal(result), state.t, state.emit)
         return
     if result.job_id == state.motion.descent_check:
-        descent_checked(state.motion, _clearance_or_refusal(result), state.t, state.emit)
+        descent_checked(state.motion, _clearance_or_refusal(result), state.t, state.emit,
+                        str(state.task.phase), state.fallback.mode is Mode.RUNNING)
         return
     parked = state.parked.pop(result.job_id, None)
     if parked is None:

@@ -344,12 +344,16 @@ def on_gripper(state: CoreState, event: GripperEvent) -> None:
 
 def on_insert(state: CoreState, event: InsertEvent) -> None:
     """The contact owner's descent, from where the arm is measured now; with the cell's
-    geometry, once its path is cleared (:func:`~kernel.core.motion.request_descent`)."""
+    geometry, once its path is cleared (:func:`~kernel.core.descent.request_descent`). Not in
+    a fallback mode: the contact owner is then not the one the task asks (a retreat, a hold,
+    a human or a stop has the arm)."""
     rotation = np.asarray(event.rotation, dtype=float)
     values = np.array([*event.xy, event.z_end], dtype=float)
     detail = ""
     if rotation.shape != (9,) or not (np.isfinite(rotation).all() and np.isfinite(values).all()):
         detail = "xy, z_end and a 3x3 rotation must be finite numbers"
+    elif state.fallback.mode is not Mode.RUNNING:
+        detail = f"the contact owner is not the task's to ask in {state.fallback.mode}"
     else:
         limits = state.config.limits
         descent = Descent(limits.clip(state.measured_q)[limits.arm_mask], values[:2],

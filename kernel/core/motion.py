@@ -33,7 +33,7 @@ from kernel.core.config import CoreConfig
 from kernel.core.effects import Hold, Motion, Retreat, Setpoint, Stop
 from kernel.core.jobs import ClearanceJob, ClearanceResult, rows_of
 from kernel.core.lines import Line, MotionDecision, MotionLine, MotionRequest
-from skills.contact import ContactOwner, ContactState, Descent
+from skills.contact import ContactOwner, ContactState, Descent, DescentStatus
 from skills.interpolator import InterpolatorConfig, SetpointInterpolator
 from skills.planner import MoveStatus, PlannedMove, PlanningError, joint_move
 from skills.trajectory import MotionLimits
@@ -72,6 +72,10 @@ class MotionState:
     contact owner holds where the arm was until the descent is cleared)."""
     descent: Descent | None = None
     """The descent that job is for."""
+    descent_asked: tuple[int, str] = (0, "")
+    """The contact owner's generation and the task phase when that job was asked for: an
+    answer after either changed is about a descent nobody holds for any more."""
+    descent_status: DescentStatus = DescentStatus.NONE
 
 
 def initial_motion(config: CoreConfig) -> MotionState:

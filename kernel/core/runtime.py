@@ -43,7 +43,7 @@ from kernel.core.events import (
 )
 from kernel.core.state import CoreState
 from kernel.core.tick import tick
-from skills.contact import ContactState
+from skills.contact import ContactState, DescentStatus
 from skills.phases import TaskPhase
 from skills.planner import MoveStatus
 from skills.trajectory import MotionLimits
@@ -87,6 +87,8 @@ class CoreStatus(msgspec.Struct, frozen=True, kw_only=True):
     move_id: int
     move: MoveStatus
     contact: ContactState
+    descent: DescentStatus = DescentStatus.NONE
+    """What became of the last ``insert`` (its path checked, started, refused)."""
     parked: int
     """Chunks waiting for a job's result."""
 
@@ -127,7 +129,8 @@ class Core:
         fallback = state.fallback
         return CoreStatus(phase=state.task.phase, mode=fallback.mode, cause=fallback.cause,
                           epoch=state.epoch, move_id=motion.move_id, move=motion.move_status,
-                          contact=motion.contact.state, parked=len(state.parked))
+                          contact=motion.contact.state, descent=motion.descent_status,
+                          parked=len(state.parked))
 
     def committed(self, t: int, action_dt: int) -> Committed | None:
         """The queued actions in force at ``t``, ``t + action_dt``, ... (real-time chunking's

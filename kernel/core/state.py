@@ -23,6 +23,7 @@ from assurance.queue import ActionQueue, SentRow
 from assurance.reasons import ReasonCode
 from assurance.watermarks import Watermarks
 from kernel.core.config import CoreConfig
+from kernel.core.descent import drop_descent
 from kernel.core.effects import Compute, DecisionRecord, Effect, EndSession
 from kernel.core.jobs import ClearanceJob
 from kernel.core.lines import Line, Machine, QueueLine, TransitionLine
@@ -207,6 +208,10 @@ class CoreState:
         if decision.accepted:
             self.emit(TransitionLine(t=self.t_ms, machine=Machine.TASK, from_=decision.source,
                                      to=decision.target, trigger=decision.trigger))
+            if TaskPhase.CONTACT in (decision.source, decision.target):
+                drop_descent(self.motion, self.t, self.emit,
+                             f"superseded: the task went from {decision.source} to "
+                             f"{decision.target}")
             if decision.target is TaskPhase.CONTACT:
                 self.motion.contact.reset()  # a new contact starts from a compliant hold
             return

@@ -12,7 +12,7 @@ import pytest
 from assurance.fallback import Mode
 from kernel.app.task import assembly_runner
 from skills.assembly import AssemblyRunner, AssemblyStep, MoveRequest, PhaseRequest, Sensed
-from skills.contact import ContactState
+from skills.contact import ContactState, DescentStatus
 from skills.phases import TaskPhase
 from skills.planner import MoveStatus
 from skills.trajectory import MotionLimits
@@ -28,6 +28,7 @@ class _View:
     move_id: int = 0
     move: MoveStatus = MoveStatus.NONE
     contact: ContactState = ContactState.IDLE
+    descent: DescentStatus = DescentStatus.NONE
 
 
 @pytest.fixture
@@ -91,3 +92,18 @@ def test_a_retreat_from_where_no_lift_is_reachable_goes_home_in_joint_space(
     assert np.array_equal(move.target, runner.layout.home_q)
     assert runner.step is AssemblyStep.RETREAT_HOME
     assert "no retreat lift" in runner._failure
+
+
+def test_a_refused_descent_gives_the_cycle_up_at_once(runner: AssemblyRunner) -> None:
+    """Before, the task waited out the insertion's 4 s and then asked to verify a peg that
+    never went in; the refusal's reason was nowhere in its outcome."""
+    runner._enter(AssemblyStep.INSERT, 0)
+    sensed = Sensed(t_ns=TICK_NS, q=np.zeros(6), qd=np.zeros(6), force_norm=0.0, fresh=True,
+                    driver_ok=True)
+    checking = _View(Mode.RUNNING, phase=TaskPhase.CONTACT, contact=ContactState.HOLDING,
+                     descent=DescentStatus.CHECKING)
+    assert not _gave_up(runner.update(sensed, checking))
+    refused = _View(Mode.RUNNING, phase=TaskPhase.CONTACT, contact=ContactState.HOLDING,
+                    descent=DescentStatus.REFUSED)
+    assert _gave_up(runner.update(sensed, refused))
+    assert runner.outcome is not None and "descent was refused" in runner.outcome.reason

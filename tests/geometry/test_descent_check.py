@@ -16,13 +16,15 @@ import pytest
 
 from kernel.core.events import (
     ComputedEvent,
+    ControllerEvent,
+    ControllerStatus,
     GripperEvent,
     InsertEvent,
     StateEvent,
 )
 from kernel.core.jobs import JobFailed
 from kernel.core.lines import MotionLine
-from skills.contact import ContactState, Descent
+from skills.contact import ContactState, Descent, DescentStatus
 from tests.geometry.job_cell import JobCell
 from tests.geometry.oracle import MujocoOracle
 from tools.scenarios.catalog_collision import FIXTURE_START, GEOMETRY, TABLE_START
@@ -143,18 +145,46 @@ def test_a_check_that_cannot_run_refuses_the_descent() -> None:
 
 
 def test_an_earlier_inserts_answer_starts_nothing() -> None:
-    """Two inserts before the first is answered: the first's clear answer is not the second's
-    (which goes into the table), and only the second's answer decides."""
+    """Two inserts before the first is answered: the first is superseded (its line says so),
+    its clear answer is not the second's (which goes into the table), and only the second's
+    answer decides."""
     cell = Cell(FIXTURE_START)
     cell.insert(HOLE_XY, PEG_BELOW_TCP + 0.003)
     cell.insert(HOLE_XY, PEG_BELOW_TCP - 0.02)
     first, second = cell.asked
+    [superseded] = cell.inserts()
+    assert superseded.decision == "refused" and "later insert" in (superseded.detail or "")
     cell.answer(first)
     cell.tick(50)
-    assert not cell.inserts() and cell.core.status().contact is ContactState.HOLDING
+    assert len(cell.inserts()) == 1 and cell.core.status().contact is ContactState.HOLDING
+    assert cell.core.status().descent is DescentStatus.CHECKING
     cell.answer(second)
+    assert [line.decision for line in cell.inserts()] == ["refused", "refused"]
+    assert "COLLISION" in (cell.inserts()[1].detail or "")
+    assert cell.core.status().descent is DescentStatus.REFUSED
+
+
+def test_a_clear_answer_after_the_arm_was_taken_starts_nothing() -> None:
+    """An E-stop while the check runs: the clear answer finds the contact owner not in
+    control, and the descent never starts."""
+    cell = Cell(FIXTURE_START)
+    cell.insert(HOLE_XY, PEG_BELOW_TCP + 0.003)
+    [job] = cell.asked
+    cell.step(ControllerEvent(t=cell.t, status=ControllerStatus.ESTOP))
+    cell.answer(job)
     [line] = cell.inserts()
-    assert line.decision == "refused"
+    assert line.decision == "refused" and "not in control" in (line.detail or "")
+    assert cell.core.status().contact is not ContactState.DESCENDING
+    cell.insert(HOLE_XY, PEG_BELOW_TCP + 0.003)  # and no new one is taken up meanwhile
+    assert len(cell.asked) == 1 and cell.inserts()[-1].decision == "refused"
+
+
+def test_a_descent_longer_than_an_insertion_is_refused_before_any_work() -> None:
+    cell = Cell(FIXTURE_START)
+    cell.insert(HOLE_XY, -1e6)  # a path of 10^8 samples, were it computed
+    [line] = cell.inserts()
+    assert line.decision == "refused" and "longer than 0.5 m" in (line.detail or "")
+    assert not cell.asked
 
 
 FIXTURE_START_TCP_Z = 0.015 + 0.015 + 0.02 + PEG_BELOW_TCP
