@@ -103,8 +103,9 @@ class WireChunk(msgspec.Struct, frozen=True, kw_only=True):
     action_units: str | None = None
     action_frame: str | None = None
     rtc_delay: RtcDelay | None = None
-    """Real-time chunking: the chunk starts at its observation's time and its first
-    ``rtc_delay`` actions reproduce the committed prefix that observation carried."""
+    """Real-time chunking: the chunk's first action is due when the first action of the
+    committed prefix its observation carried was, and its first ``rtc_delay`` actions
+    reproduce that prefix."""
 
 
 # ---------------------------------------------------------------------------------------------

@@ -60,17 +60,19 @@ class ObservationLog:
         self.capacity = capacity
         self._times: OrderedDict[str, int] = OrderedDict()
         self._answered: set[str] = set()
-        self._prefixes: dict[str, RtcPrefix] = {}
+        self._prefixes: dict[str, tuple[RtcPrefix, int]] = {}
         self.latest: str | None = None
 
-    def record(self, observation_id: str, t_event: int, prefix: RtcPrefix | None = None) -> None:
-        """An observation sent at ``t_event``, with the committed prefix it carried, if any."""
+    def record(self, observation_id: str, t_event: int, prefix: RtcPrefix | None = None,
+               queue_version: int = 0) -> None:
+        """An observation sent at ``t_event``, with the committed prefix it carried, if any, and
+        the version of the queue that prefix was taken from."""
         self._times[observation_id] = t_event
         self._times.move_to_end(observation_id)
         self._answered.discard(observation_id)
         self._prefixes.pop(observation_id, None)
         if prefix is not None:
-            self._prefixes[observation_id] = prefix
+            self._prefixes[observation_id] = (prefix, queue_version)
         self.latest = observation_id
         if len(self._times) > self.capacity:
             oldest, _ = self._times.popitem(last=False)
@@ -80,8 +82,9 @@ class ObservationLog:
     def time_of(self, observation_id: str) -> int | None:
         return self._times.get(observation_id)
 
-    def prefix_of(self, observation_id: str) -> RtcPrefix | None:
-        """The committed prefix the observation carried (real-time chunking), if any."""
+    def prefix_of(self, observation_id: str) -> tuple[RtcPrefix, int] | None:
+        """The committed prefix the observation carried (real-time chunking), if any, and the
+        queue's version when it was taken."""
         return self._prefixes.get(observation_id)
 
     def answer(self, observation_id: str) -> None:

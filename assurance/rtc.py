@@ -29,6 +29,7 @@ import msgspec
 import numpy as np
 
 from assurance.envelope import Chunk
+from assurance.limits import JointLimits
 from assurance.queue import ActionQueue
 from assurance.reasons import ReasonCode as R
 
@@ -78,16 +79,20 @@ def committed_prefix(queue: ActionQueue, t: int, action_dt: int,
 
 
 def rtc_reasons(chunk: Chunk, prefix: RtcPrefix | None, t_obs: int | None,
-                first_due: int | None, late: int, bound: float,
-                arm: np.ndarray) -> tuple[list[R], str | None]:
+                first_due: int | None, late: int, bound: float, limits: JointLimits,
+                changed: bool = False) -> tuple[list[R], str | None]:
     """The RTC gate (module docstring) for a chunk that says it was conditioned on a prefix
     (``rtc_delay``); none for one that does not. ``late``: its actions already due when it
-    arrived; ``bound``: the phase's ``max_projection`` (rad); ``arm``: the arm's columns (the
-    gripper's opening is not compared). Returns the reasons and what was wrong."""
+    arrived; ``bound``: the phase's ``max_projection`` (rad) for the arm's joints (a gripper's
+    opening must agree within its event threshold: a gripper event among the actions dropped
+    would be lost); ``changed``: an admission or a purge changed the queue since the prefix was
+    taken, so it is not what runs now. Returns the reasons and what was wrong."""
     delay = chunk.rtc_delay
     if delay is None:
         return [], None
-    problem = _prefix_problem(chunk, delay, prefix, t_obs, first_due, bound, arm)
+    problem = _prefix_problem(chunk, delay, prefix, t_obs, first_due, bound, limits)
+    if problem is None and changed:
+        problem = "the queue changed after its observation: the prefix is not what runs now"
     if problem is not None:
         return [R.RTC_PREFIX_MISMATCH], problem
     if late > delay:
@@ -97,7 +102,7 @@ def rtc_reasons(chunk: Chunk, prefix: RtcPrefix | None, t_obs: int | None,
 
 
 def _prefix_problem(chunk: Chunk, delay: int, prefix: RtcPrefix | None, t_obs: int | None,
-                    first_due: int | None, bound: float, arm: np.ndarray) -> str | None:
+                    first_due: int | None, bound: float, limits: JointLimits) -> str | None:
     if prefix is None or t_obs is None:
         return f"observation {chunk.observation_id!r} carried no committed prefix"
     dt = chunk.time("action_dt")
@@ -111,10 +116,14 @@ def _prefix_problem(chunk: Chunk, delay: int, prefix: RtcPrefix | None, t_obs: i
     if delay == 0:
         return None
     committed = np.array(prefix.actions[:delay], dtype=float)
-    if not committed.shape[1] == chunk.actions.shape[1] == arm.shape[0]:
+    if not committed.shape[1] == chunk.actions.shape[1] == limits.dim:
         return (f"the prefix has {committed.shape[1]} values per action, the chunk "
                 f"{chunk.actions.shape[1]}")
-    apart = float(np.abs(chunk.actions[:delay, arm] - committed[:, arm]).max())
-    if not apart <= bound:  # NaN is not within any bound
-        return f"its first {delay} actions are {apart:.4g} rad from the prefix (bound {bound:g})"
+    gap = np.abs(chunk.actions[:delay] - committed)
+    arm = float(gap[:, limits.arm_mask].max())
+    if not arm <= bound:  # NaN is not within any bound
+        return f"its first {delay} actions are {arm:.4g} rad from the prefix (bound {bound:g})"
+    grip = limits.gripper_index
+    if grip is not None and not float(gap[:, grip].max()) <= limits.gripper_event_threshold:
+        return f"its gripper differs from the prefix's within its first {delay} actions"
     return None

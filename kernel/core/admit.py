@@ -174,9 +174,11 @@ def _evaluate(state: CoreState, chunk: Chunk, seen: Seen, parked: Parked | None)
     reasons += context_reasons(chunk, ctx)
     timing = time_verdict(chunk, ctx, t_obs)
     reasons += timing.reasons
+    sent = state.observations.prefix_of(chunk.observation_id)
     rtc, rtc_problem = rtc_reasons(
-        chunk, state.observations.prefix_of(chunk.observation_id), t_obs, timing.first_due,
-        timing.late, ctx.policy.max_projection, state.config.limits.arm_mask)
+        chunk, None if sent is None else sent[0], t_obs, timing.first_due, timing.late,
+        ctx.policy.max_projection, state.config.limits,
+        changed=sent is not None and sent[1] != state.queue_version)
     reasons += rtc
     mapped = parked.mapped if parked is not None else None
     joints, unmappable = _in_joint_space(state, chunk, reasons, mapped)

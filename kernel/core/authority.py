@@ -126,7 +126,7 @@ def _tool_inside(state: CoreState, q: np.ndarray) -> bool:
 
 
 def on_observation(state: CoreState, event: ObservationEvent) -> None:
-    state.observations.record(event.observation_id, state.t, event.rtc)
+    state.observations.record(event.observation_id, state.t, event.rtc, state.queue_version)
 
 
 def on_force(state: CoreState, event: ForceEvent) -> None:

@@ -70,6 +70,9 @@ class CoreState:
     parked: dict[int, Any] = field(default_factory=dict)
     """Chunks waiting for a job's result, by job id (see :mod:`kernel.core.admit`)."""
     jobs_issued: int = 0
+    queue_version: int = 0
+    """Counts the admissions and purges that changed the queue: a real-time chunking prefix
+    taken at another version is not what runs now (:mod:`assurance.rtc`)."""
     plausible: Track | None = None
     """The last plausible state sample and what followed it (:mod:`assurance.plausibility`)."""
     plausibility: Bounds | None = None
@@ -165,6 +168,7 @@ class CoreState:
         self._queue_reset()
 
     def _queue_reset(self) -> None:
+        self.queue_version += 1
         self.executed_in_epoch = False
         self.underrun_since = None
         if self.watermarks is not None:

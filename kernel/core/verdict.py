@@ -27,6 +27,7 @@ def commit(
         refuse(state, chunk.chunk_id, (R.MALFORMED,), detail="no merge plan")
         return
     plan.commit(state.queue)
+    state.queue_version += 1
     state.observations.answer(chunk.observation_id)
     state.last_sequence = chunk.sequence
     state.fallback.clear_debounce()

@@ -139,8 +139,10 @@ def _prefix(item: Mapping[str, Any], where: Where) -> RtcPrefix:
     action of the grid), ``first_action_time_ns`` and ``action_dt_ns`` (exact), ``delay`` and
     ``horizon`` (actions)."""
     rows = item.get("actions")
-    if not isinstance(rows, list) or len(rows) > MAX_PREFIX_ROWS:
-        raise where.at("actions").error(f"must be a list of at most {MAX_PREFIX_ROWS} actions")
+    if not isinstance(rows, list) or len(rows) > MAX_PREFIX_ROWS or not all(
+            isinstance(row, list) for row in rows):
+        raise where.at("actions").error(
+            f"must be a list of at most {MAX_PREFIX_ROWS} actions, each a list of numbers")
     actions = [vector(row, where.at("actions").at(i), len(rows[0]) if rows else None)
                for i, row in enumerate(rows)]
     return RtcPrefix(
@@ -253,9 +255,9 @@ def _converted(raw: Any, kind: Any, where: Where) -> Any:
 
 
 MAX_NS = int(CLOCK_OFFSET_MAX_MS) * 1_000_000
+"""The largest clock offset or round trip a file may carry (docs/manifest.md, "Bounds")."""
 MAX_EVENT_NS = int(EVENT_TIME_MAX_MS) * 1_000_000
 """The largest event time a file may carry, in ns (a committed prefix's first due time)."""
-"""The largest clock offset or round trip a file may carry (docs/manifest.md, "Bounds")."""
 
 
 def _clock_sync(t: int, item: Mapping[str, Any], where: Where, _: JointLimits) -> Event:

@@ -11,8 +11,9 @@ Sans-I/O, like the protocol that owns it: times are passed in.
   :data:`FEW`), plus how long before the observation the first committed action was due, in
   actions, rounded up: the actions of the answer that will be due, in 19 cases out of 20, when
   it is admitted. Before the first round trip: no prefix.
-- The horizon is the chunk horizon the server offered, less that delay: the actions of its
-  answer after the seam, which warden will run unless a later answer takes over first.
+- The horizon is the chunk horizon the server offered, less that delay (at most 1024): the
+  actions of its answer after the seam, which warden will run unless a later answer takes
+  over first.
 """
 
 from __future__ import annotations
@@ -76,4 +77,4 @@ class PrefixPlanner:
         delay = min(rows.shape[0], math.ceil((self._round_trip() + since) / grid))
         return RtcPrefix(actions=tuple(tuple(row) for row in rows.tolist()),
                          first_due=committed.first_due, action_dt=grid, delay=delay,
-                         horizon=max(0, self.chunk_horizon - delay))
+                         horizon=min(MAX_PREFIX_ROWS, max(0, self.chunk_horizon - delay)))

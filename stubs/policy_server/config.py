@@ -57,8 +57,8 @@ class ServerConfig:
     replacement_policy: ReplacementPolicy = ReplacementPolicy.REPLACE
     rtc: bool = False
     """Offer real-time chunking: a chunk answering an observation that carries the committed
-    prefix starts at the observation's time, repeats the prefix's first ``delay`` actions and
-    plans on from the last of them."""
+    prefix starts where the prefix does, repeats its first ``delay`` actions and plans on from
+    the last of them."""
     max_observation_age_ms: float = 80.0
     max_action_age_ms: float = 200.0
     seed: int = 0

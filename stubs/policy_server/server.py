@@ -65,7 +65,7 @@ from stubs.policy_server.protocol import (
     message_type,
     payload_vector,
 )
-from stubs.policy_server.rtc import conditioned_actions
+from stubs.policy_server.rtc import ServerPrefix, conditioned_actions, read_prefix
 
 
 @dataclass(slots=True)
@@ -291,32 +291,33 @@ class _Connection:
         if not self.accepted or self.tasks is None:
             raise ProtocolViolation("an observation before an accepted handshake")
         q = payload_vector(observation.q, len(self.config.goal))
+        # Real-time chunking: joint actions only (a Cartesian session's are not the rows).
+        prefix = None if self.server.output is not None else read_prefix(
+            self.config, observation.rtc, self.client_offset)
         self.stats.observations += 1
-        self.tasks.create_task(self._infer(observation, q, t))
+        self.tasks.create_task(self._infer(observation, q, t, prefix))
 
     # -- inference and delivery ------------------------------------------------------------
 
-    async def _infer(self, observation: Observation, q: np.ndarray, t_arrival: int) -> None:
+    async def _infer(self, observation: Observation, q: np.ndarray, t_arrival: int,
+                     prefix: ServerPrefix | None) -> None:
         plan = self.server.faults.next_chunk()
         latency = self.config.latency.sample_s(self.server.rng) + plan.spike_s
         t_start = self.server.now_ns()
         if latency > 0:  # zero: answer in the same loop iteration, as a benchmark wants
             await asyncio.sleep(latency)
-        await self._deliver(self._chunk(observation, q, t_arrival, t_start, plan), plan)
+        await self._deliver(self._chunk(observation, q, t_arrival, t_start, plan, prefix), plan)
 
     def _chunk(self, observation: Observation, q: np.ndarray, t_arrival: int, t_start: int,
-               plan: ChunkFaults) -> ChunkEnvelope:
+               plan: ChunkFaults, prefix: ServerPrefix | None = None) -> ChunkEnvelope:
         cfg = self.config
         # Observation time in this server's clock: the client's measured offset (protocol 2)
         # translates it; without one, the arrival time is the best this side knows.
         t_obs = t_arrival if self.client_offset is None else (
             observation.t_event - self.client_offset)
         qd = payload_vector(observation.qd, len(cfg.goal)) if observation.qd else None
-        # Real-time chunking needs the client's clock (its first action is the prefix's, a
-        # client time) and joint actions (a Cartesian session's are not the committed rows).
-        conditioned = None if self.client_offset is None or self.server.output is not None else (
-            conditioned_actions(cfg, self.server.policy, self.server.rng, observation.rtc, qd,
-                                self.client_offset))
+        conditioned = None if prefix is None else conditioned_actions(
+            cfg, self.server.policy, self.server.rng, prefix, qd)
         if conditioned is None:
             actions = self.server.policy.actions(q, cfg.lead_ns / 1e9, self.server.rng, qd)
             first, delay = t_obs + cfg.lead_ns, None

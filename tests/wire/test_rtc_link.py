@@ -4,6 +4,7 @@ server that offered it, the reference server honours it, and the core checks it
 
 from __future__ import annotations
 
+import msgspec
 import numpy as np
 import pytest
 
@@ -11,7 +12,11 @@ from assurance.envelope import Chunk
 from assurance.rtc import Committed
 from kernel.core.events import ChunkEvent, ObservationEvent
 from kernel.shell.link_rtc import PrefixPlanner
+from kernel.wire import WirePrefix, prefix_payload
+from stubs.policy_server import protocol as peer_protocol
+from stubs.policy_server.rtc import read_prefix
 from tests.wire.harness import LoopbackGateway, running, server_config, wait_for
+from tests.wire.test_hostile import journal_round_trip
 
 MS = 1_000_000
 
@@ -36,10 +41,14 @@ async def test_a_server_that_offers_rtc_gets_the_prefix_and_its_chunks_are_admit
     for prefix in prefixes:
         assert prefix.action_dt == 20 * MS and len(prefix.actions) >= prefix.delay >= 1
         assert prefix.horizon == 20 - prefix.delay
+    journal_round_trip(gateway)  # every prefix as sent is a journal line that parses back
     decided = {line.chunk_id: line for line in lines}
     conditioned = [c for c in _conditioned(events) if c.chunk_id in decided]
     admitted = [c for c in conditioned if decided[c.chunk_id].decision != "rejected"]
     assert len(admitted) >= 3, [decided[c.chunk_id] for c in conditioned]
+    # Due from the prefix's first action, before the observation: each arrives with actions
+    # due, and (where trimming is forbidden too) drops only those.
+    assert all(decided[c.chunk_id].decision == "trimmed" for c in admitted)
     # The server reproduces the prefix exactly; an answer later than the measured p95 (a
     # pause of this shared machine) may still come too late, and is refused as that alone.
     assert not [line for line in lines if "RTC_PREFIX_MISMATCH" in line.reasons]
@@ -93,3 +102,38 @@ def test_the_delay_is_the_95th_percentile_round_trip_in_actions() -> None:
     assert prefix is not None and prefix.delay == 5  # ceil(95 / 20), within the 8 committed
     short = planner.prefix(Committed(0, np.ones((3, 3))), 0)
     assert short is not None and short.delay == 3  # never more than was committed
+
+
+def test_the_horizon_a_large_offer_implies_still_fits_the_wire() -> None:
+    """An offer's chunk_horizon is any positive number: the horizon sent is capped at what a
+    prefix may say, or every observation would be undecodable, and its journal unreadable."""
+    planner = PrefixPlanner()
+    planner.begin(offered=True, chunk_horizon=2000)
+    planner.answered(30 * MS, 20 * MS)
+    prefix = planner.prefix(Committed(0, np.ones((4, 6))), 0)
+    assert prefix is not None and prefix.horizon == 1024
+    body = msgspec.msgpack.encode(prefix_payload(prefix))
+    assert msgspec.msgpack.decode(body, type=WirePrefix).horizon == 1024
+    peer = msgspec.msgpack.decode(body, type=peer_protocol.Prefix)  # and the server reads it
+    assert peer.horizon == 1024
+
+
+def _peer_prefix(width: int, first: int = 0) -> peer_protocol.Prefix:
+    rows = np.zeros((3, width))
+    return peer_protocol.Prefix(actions=peer_protocol.ArrayPayload(
+        dtype="<f8", shape=rows.shape, data=rows.tobytes()), first_action_time=first,
+        action_dt=20 * MS, delay=2, horizon=5)
+
+
+def test_the_reference_server_reads_a_prefix_when_it_arrives() -> None:
+    """Checked with the observation, where a violation ends the connection with a bye, not in
+    the inference task (a wrong width once escaped there as an exception group)."""
+    config = server_config(rtc=True, action_dt_ms=20.0)
+    width = len(config.goal)
+    assert read_prefix(config, _peer_prefix(width), client_offset=5) is not None
+    assert read_prefix(server_config(), _peer_prefix(width), client_offset=5) is None
+    assert read_prefix(config, _peer_prefix(width), client_offset=None) is None
+    with pytest.raises(peer_protocol.ProtocolViolation, match="rows of"):
+        read_prefix(config, _peer_prefix(width + 1), client_offset=5)
+    with pytest.raises(peer_protocol.ProtocolViolation, match="range"):
+        read_prefix(config, _peer_prefix(width, first=-(2**63) + 1), client_offset=2**62)
