@@ -58,7 +58,7 @@ from kernel.core.jobs import (
     run_job,
 )
 from kernel.core.lines import ChunkLine, Decision
-from kernel.core.motion import move_checked
+from kernel.core.motion import NOT_CHECKED, move_checked
 from kernel.core.state import CoreState
 from kernel.core.verdict import answered_unusably, commit, log_decision, refuse
 
@@ -138,7 +138,7 @@ def _clearance_or_refusal(result: JobResult) -> ClearanceResult:
     unchecked."""
     if isinstance(result, ClearanceResult):
         return result
-    return ClearanceResult(job_id=result.job_id, clear=False, pair=("not", "checked"))
+    return ClearanceResult(job_id=result.job_id, clear=False, pair=NOT_CHECKED)
 
 
 def _ignore_duplicate(state: CoreState, chunk: Chunk) -> None:

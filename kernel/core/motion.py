@@ -257,8 +257,14 @@ def move_checked(m: MotionState, result: ClearanceResult, t: int,
                     move_id=m.move_id, detail=detail))
 
 
+NOT_CHECKED = ("not", "checked")
+"""The pair of a clearance result that stands for a check that could not run."""
+
+
 def collision_detail(result: ClearanceResult) -> str:
     """What a refused motion's line says: the pair, its distance and the clearance."""
+    if result.pair == NOT_CHECKED:
+        return "not checked: its clearance job could not run, and nothing moves unchecked"
     return (f"COLLISION: {result.pair[0]} and {result.pair[1]} at {result.distance:.4f} m "
             f"(at least {result.bound:.4f} m on the way) need {result.needed:.4f} m")
 

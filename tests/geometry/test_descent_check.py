@@ -140,7 +140,7 @@ def test_a_check_that_cannot_run_refuses_the_descent() -> None:
     [job] = cell.asked
     cell.step(ComputedEvent(t=cell.t, result=JobFailed(job_id=job.job_id, detail="worker died")))
     [line] = cell.inserts()
-    assert line.decision == "refused" and "not and checked" in (line.detail or "")
+    assert line.decision == "refused" and "not checked" in (line.detail or "")
     assert cell.core.status().contact is ContactState.HOLDING
 
 
