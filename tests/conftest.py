@@ -12,6 +12,9 @@ import pytest
 import structlog
 from hypothesis import HealthCheck, settings
 
+# Offscreen rendering (stubs/plant/cameras.py) needs EGL chosen before anything imports MuJoCo.
+os.environ.setdefault("MUJOCO_GL", "egl")
+
 settings.register_profile(
     "ci", deadline=None, max_examples=60, suppress_health_check=[HealthCheck.too_slow]
 )
