@@ -22,6 +22,7 @@ from kernel.app.task_settings import TaskSettings, check_home
 from kernel.config.build import build_config, check_keys
 from kernel.config.workspace import workspace_box
 from kernel.core.config import CoreConfig
+from kernel.manifest_cameras import CameraSettings, cameras_table
 from kernel.manifest_tables import (
     decode_driver_settings,
     driver_table,
@@ -98,10 +99,12 @@ class Manifest:
     safety: SafetySettings | None = None
     """``[safety]``: the independent safety monitor and warden's heartbeat to it (None: no
     such table, warden sends no heartbeat and the monitor refuses the manifest)."""
+    cameras: tuple[CameraSettings, ...] = ()
+    """``[[cameras]]`` (kernel/manifest_cameras.py)."""
 
 
 _TOP_KEYS = frozenset({"name", "description", "cell", "driver", "emulator", "policy",
-                       "journal", "task", "operator", "trial", "safety",
+                       "journal", "task", "operator", "trial", "safety", "cameras",
                        *SCENARIO_SECTIONS})
 
 
@@ -164,6 +167,7 @@ def _load(path: Path, raw: str, credentials: bool) -> Manifest:
         operator=_read(OperatorSettings, doc, "operator", where),
         safety=safety_table(doc, where, core.control_period_ns),
         trial=_trial(doc, where),
+        cameras=cameras_table(doc, where, driver_name),
     )
 
 

@@ -16,7 +16,8 @@ In order, each step one or more rows of the readiness table:
    manifest (``Driver.inspect``), reads only;
 5. deactivate, close;
 6. the policy server, reached as a run reaches it, without a session
-   (:mod:`kernel.app.check_policy`).
+   (:mod:`kernel.app.check_policy`);
+7. each camera, read for a moment (:mod:`kernel.app.check_cameras`).
 
 The driver's ``write`` and ``hold`` are never called: a hold is a setpoint to a streaming
 device (servoJ to the measured position, goal := present with torque on), which the device
@@ -37,6 +38,7 @@ from pathlib import Path
 from drivers.base import ControlConfig, DeviceFault, Driver, DriverError, StateSample
 from drivers.readiness import CheckVerdict, Finding, judged, not_exercised, span
 from kernel import signing
+from kernel.app.check_cameras import camera_rows
 from kernel.app.check_policy import policy_rows
 from kernel.app.compose import world_for
 from kernel.app.device import World
@@ -130,7 +132,7 @@ async def check_device(manifest: Manifest, world: World, seconds: float) -> list
             await _step(rows, "deactivate", driver.deactivate())
     finally:
         await _step(rows, "close", driver.aclose())
-    return rows + await policy_rows(manifest) + _not_exercised()
+    return rows + await policy_rows(manifest) + await camera_rows(manifest) + _not_exercised()
 
 
 async def _connected(driver: Driver, rows: list[Finding]) -> bool:
