@@ -121,26 +121,22 @@ class ContactOwner:
         """Counts every change of what the law does (a start, a hold, a retreat, a relaxed
         hold, a new cycle): an answer about one of them is stale once it has moved on."""
 
-    def start(self, q: np.ndarray, xy: np.ndarray, z_end: float, rotation: np.ndarray) -> None:
-        """Begin a descent from the tool's height at ``q`` down to ``z_end``, along the vertical
-        through ``xy``, holding the tool at ``rotation`` (a 3×3 matrix, base frame).
+    def start(self, descent: Descent) -> None:
+        """Begin ``descent``: from the tool's height at its ``q`` down to its ``z_end``, along
+        the vertical through its ``xy``, holding the tool at its ``rotation``.
 
         Raises:
             NoKinematics: there is no kinematic model to descend with.
         """
         kin = self._kinematics()
-        self._q = np.asarray(q, dtype=float).copy()
-        self._xy = np.asarray(xy, float)
-        self._rotation = np.asarray(rotation, float)
+        self._q = np.asarray(descent.q, dtype=float).copy()
+        self._xy = np.asarray(descent.xy, float)
+        self._rotation = np.asarray(descent.rotation, float)
         self._z = self._z_start = float(kin.forward(self._q).position[2])
-        self._z_end = float(z_end)
+        self._z_end = float(descent.z_end)
         self._softness = 1.0
         self.state = ContactState.DESCENDING
         self.generation += 1
-
-    def begin(self, descent: Descent) -> None:
-        """:meth:`start` the descent an ``insert`` asked for."""
-        self.start(descent.q, descent.xy, descent.z_end, descent.rotation)
 
     def descent_path(self, descent: Descent, step_m: float) -> np.ndarray:
         """The configurations ``descent`` would pass through, every ``step_m`` of height and

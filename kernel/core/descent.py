@@ -39,7 +39,7 @@ def request_descent(m: MotionState, ctx: MotionContext, descent: Descent) -> boo
     if m.descent_check is not None:
         _decided(m, ctx.t, ctx.emit, "superseded by a later insert")
     if collision is None or ctx.ask is None:
-        m.contact.begin(descent)
+        m.contact.start(descent)
         m.descent_status = DescentStatus.STARTED
         return True
     path = m.contact.descent_path(descent, DESCENT_CHECK_STEP_M)
@@ -67,7 +67,7 @@ def descent_checked(m: MotionState, result: ClearanceResult, t: int,
                   + ("" if in_control else ", not in control"))
     else:
         try:
-            m.contact.begin(descent)
+            m.contact.start(descent)
         except (NoKinematics, ValueError) as error:  # checked once already: not expected
             detail = str(error)
     _decided(m, t, emit, detail)

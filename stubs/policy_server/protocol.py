@@ -10,6 +10,7 @@ The body stays undecoded until the type is known, so a broken body is still attr
 
 from __future__ import annotations
 
+import math
 from enum import StrEnum
 from typing import Annotated
 
@@ -254,16 +255,11 @@ def payload_vector(payload: ArrayPayload, length: int) -> np.ndarray:
     Raises:
         ProtocolViolation: another dtype, shape or length, or bytes that do not fill it.
     """
-    try:
-        dtype = np.dtype(payload.dtype)
-    except (TypeError, ValueError, SyntaxError) as error:  # numpy parses the text itself
-        raise ProtocolViolation(f"unknown dtype {payload.dtype[:20]!r}") from error
-    if dtype.kind != "f" or payload.shape != (length,):
+    dtype = _float_dtype(payload)
+    if dtype is None or payload.shape != (length,):
         raise ProtocolViolation(
             f"a state vector is {length} floats, got {payload.dtype[:20]} {payload.shape[:4]}")
-    if len(payload.data) != dtype.itemsize * length:
-        raise ProtocolViolation("vector bytes do not match dtype and shape")
-    return np.frombuffer(payload.data, dtype=dtype).astype(np.float64)
+    return _floats(payload, dtype, "vector")
 
 
 def payload_rows(payload: ArrayPayload, width: int, most: int) -> np.ndarray:
@@ -272,17 +268,35 @@ def payload_rows(payload: ArrayPayload, width: int, most: int) -> np.ndarray:
     Raises:
         ProtocolViolation: another dtype or shape, or bytes that do not fill it.
     """
-    try:
-        dtype = np.dtype(payload.dtype)
-    except (TypeError, ValueError, SyntaxError) as error:
-        raise ProtocolViolation(f"unknown dtype {payload.dtype[:20]!r}") from error
-    shape = payload.shape
-    if dtype.kind != "f" or len(shape) != 2 or shape[1] != width or not 0 <= shape[0] <= most:
+    dtype, shape = _float_dtype(payload), payload.shape
+    if dtype is None or len(shape) != 2 or shape[1] != width or not 0 <= shape[0] <= most:
         raise ProtocolViolation(f"expected up to {most} rows of {width} floats, got "
                                 f"{payload.dtype[:20]} {shape[:4]}")
-    if len(payload.data) != dtype.itemsize * shape[0] * width:
-        raise ProtocolViolation("array bytes do not match dtype and shape")
-    return np.frombuffer(payload.data, dtype=dtype).astype(np.float64).reshape(shape)
+    return _floats(payload, dtype, "array")
+
+
+def _float_dtype(payload: ArrayPayload) -> np.dtype | None:
+    """The payload's dtype if it is a float one, else None.
+
+    Raises:
+        ProtocolViolation: numpy cannot read the dtype text.
+    """
+    try:
+        dtype = np.dtype(payload.dtype)
+    except (TypeError, ValueError, SyntaxError) as error:  # numpy parses the text itself
+        raise ProtocolViolation(f"unknown dtype {payload.dtype[:20]!r}") from error
+    return dtype if dtype.kind == "f" else None
+
+
+def _floats(payload: ArrayPayload, dtype: np.dtype, what: str) -> np.ndarray:
+    """The payload's values as float64 in its (checked) shape.
+
+    Raises:
+        ProtocolViolation: the bytes do not fill that shape exactly.
+    """
+    if len(payload.data) != dtype.itemsize * math.prod(payload.shape):
+        raise ProtocolViolation(f"{what} bytes do not match dtype and shape")
+    return np.frombuffer(payload.data, dtype=dtype).astype(np.float64).reshape(payload.shape)
 
 
 def _short(error: Exception) -> str:

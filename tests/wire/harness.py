@@ -26,6 +26,8 @@ from kernel.core.effects import Hold, Step, Stop
 from kernel.core.events import Event, LinkEvent, StateEvent, TickEvent
 from kernel.core.lines import ChunkLine, HandshakeLine, Line, TickLine
 from kernel.core.runtime import Core
+from kernel.journal import event_record
+from kernel.scenario.events import parse_events
 from kernel.scenario.fields import Where
 from kernel.shell.client import RobotClient
 from kernel.shell.link_budget import AdmissionPacer
@@ -174,6 +176,14 @@ async def running(
             finally:
                 stop.set()
                 client.stop()
+
+
+def journal_round_trip(gateway: LoopbackGateway) -> None:
+    """Every event the core was fed becomes a journal line that parses back (the replay's
+    first step): a value the journal cannot carry would make the run unreplayable."""
+    records = [event_record(event) for event in gateway.events]
+    parsed = parse_events(records, Where("journal", "events"), gateway.config.limits)
+    assert len(parsed) == len(records)
 
 
 async def wait_for(condition: Callable[[], object], what: str, timeout_s: float = 8.0) -> None:

@@ -15,8 +15,6 @@ from kernel.core.effects import Step
 from kernel.core.events import ChunkEvent, ClockSyncEvent, ObservationEvent, TickEvent
 from kernel.core.lines import ChunkLine, encode
 from kernel.core.runtime import Core
-from kernel.journal import event_record
-from kernel.scenario.events import parse_events
 from kernel.scenario.fields import Where
 from kernel.shell.link_budget import AdmissionPacer, TokenBucket
 from kernel.shell.link_intake import OTHERS_QUEUED
@@ -26,16 +24,14 @@ from kernel.wire import MAX_CLOCK_OFFSET_NS
 from stubs.policy_server import FaultConfig
 from stubs.policy_server import envelope as peer_env
 from stubs.policy_server import protocol as peer
-from tests.wire.harness import LoopbackGateway, running, server_config, wait_for
+from tests.wire.harness import (
+    LoopbackGateway,
+    journal_round_trip,
+    running,
+    server_config,
+    wait_for,
+)
 from tools.scenarios.base import ScenarioSpec
-
-
-def journal_round_trip(gateway: LoopbackGateway) -> None:
-    """Every event the core was fed becomes a journal line that parses back (the replay's
-    first step): a value the journal cannot carry would make the run unreplayable."""
-    records = [event_record(event) for event in gateway.events]
-    parsed = parse_events(records, Where("journal", "events"), gateway.config.limits)
-    assert len(parsed) == len(records)
 
 
 @pytest.mark.parametrize("t_server", [2**64 - 1, -(2**63 - 1), 2**63 - 1],

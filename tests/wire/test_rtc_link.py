@@ -15,8 +15,13 @@ from kernel.shell.link_rtc import PrefixPlanner
 from kernel.wire import WirePrefix, prefix_payload
 from stubs.policy_server import protocol as peer_protocol
 from stubs.policy_server.rtc import read_prefix
-from tests.wire.harness import LoopbackGateway, running, server_config, wait_for
-from tests.wire.test_hostile import journal_round_trip
+from tests.wire.harness import (
+    LoopbackGateway,
+    journal_round_trip,
+    running,
+    server_config,
+    wait_for,
+)
 
 MS = 1_000_000
 
