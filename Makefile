@@ -47,6 +47,7 @@ bench: $(STAMP)
 	$(BIN)/python bench/cells.py
 	$(BIN)/python bench/flood.py
 	$(BIN)/python bench/link_loss.py
+	$(BIN)/python bench/camera_latency.py
 
 # Coverage-guided fuzzing of the wire decoder, the scenario loader and the manifest loader
 # (tests/fuzz): FUZZ_SECONDS per target with atheris, then the hypothesis fuzz and property tests

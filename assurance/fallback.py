@@ -132,6 +132,7 @@ def _rules(degrade_after: int) -> dict[R, Rule]:
         Rule(R.OOD, Mode.SAFE_HOLD, _SOFT),
         Rule(R.HOLD_REQUESTED, Mode.SAFE_HOLD, _SOFT),
         Rule(R.UNDERRUN, Mode.SAFE_HOLD, _SOFT),
+        Rule(R.CAMERA_LOST, Mode.SAFE_HOLD, _SOFT),
         Rule(R.INFEASIBLE, Mode.REPLAN_OR_RETREAT, frozenset({Mode.RUNNING})),
         Rule(R.LINK_LOST, Mode.DEGRADED, frozenset({Mode.RUNNING})),
         Rule(R.HANDSHAKE_REQUIRED, Mode.DEGRADED, frozenset({Mode.RUNNING})),

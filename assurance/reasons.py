@@ -96,6 +96,10 @@ class ReasonCode(StrEnum):
     """A chunk conditioned on the committed prefix arrived after more of its actions were due
     than the ``rtc_delay`` it was conditioned on: the arm would run actions the policy planned
     without knowing what ran meanwhile."""
+    CAMERA_LOST = "CAMERA_LOST"
+    """A camera the policy sees through gave no fresh frame, or froze, and the manifest says
+    losing it stops the phase (at once, or once its grace ran out without it coming back):
+    no observation goes out without it, and the arm holds (SAFE_HOLD)."""
 
 
 _ORDER = {code: index for index, code in enumerate(ReasonCode)}

@@ -12,14 +12,14 @@ A camera that keeps sending the same picture is as bad as a lost one, and harder
 :class:`FreezeWatch` tells one from a scene that merely stands still only for a real sensor
 (its noise changes every frame), so it is for real cameras, not for a rendered scene.
 
-Not yet carried by observations: docs/architecture.md, "Cameras".
+The run reads them through kernel/shell/cameras.py (docs/architecture.md, "Cameras").
 """
 
 from __future__ import annotations
 
 import hashlib
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
@@ -75,6 +75,14 @@ class CameraSource(Protocol):
     def read(self) -> CameraFrame: ...
 
     def close(self) -> None: ...
+
+
+@runtime_checkable
+class TriggeredSource(CameraSource, Protocol):
+    """A camera that takes a picture when asked (a rendered one): ``trigger`` returns at once,
+    and ``read`` gives the new frame once it is there (the newest until then)."""
+
+    def trigger(self) -> None: ...
 
 
 class FreezeWatch:

@@ -254,6 +254,9 @@ def _with_overrides(manifest: Manifest, cycles: int | None, clock: str | None) -
         cell = msgspec.structs.replace(cell, cycles=cycles)
     if clock is not None:
         cell = msgspec.structs.replace(cell, clock=ClockKind(clock))
+        if cell.clock is ClockKind.VIRTUAL and manifest.cameras:
+            raise ManifestError(f"--clock virtual: {manifest.path} has [[cameras]], which see "
+                                "the cell on the wall clock")
     return dataclasses.replace(manifest, cell=cell)
 
 

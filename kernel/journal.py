@@ -29,6 +29,7 @@ from assurance.reasons import ReasonCode
 from assurance.rtc import RtcPrefix
 from kernel.core.effects import Motion
 from kernel.core.events import (
+    CameraEvent,
     ChunkEvent,
     ClockSyncEvent,
     ComputedEvent,
@@ -51,7 +52,7 @@ from kernel.core.events import (
 
 JOURNAL_FORMAT = "warden-journal/1"
 HEADER_SECTIONS = ("robot", "timing", "phases", "session", "allowlist", "motion", "envelope",
-                   "geometry")
+                   "geometry", "cameras")
 
 
 def header(sections: Mapping[str, Any], name: str) -> dict[str, Any]:
@@ -172,7 +173,11 @@ _BODIES: dict[type, Callable[[Any], dict[str, Any]]] = {
     StateEvent: _state,
     ChunkEvent: _chunk,
     ObservationEvent: lambda e: {"kind": "observation", "observation_id": e.observation_id,
-                                 **({"rtc": prefix_fields(e.rtc)} if e.rtc else {})},
+                                 **({"rtc": prefix_fields(e.rtc)} if e.rtc else {}),
+                                 **({"frames": [msgspec.to_builtins(f) for f in e.frames]}
+                                    if e.frames else {})},
+    CameraEvent: lambda e: {"kind": "camera", "camera": e.camera, "status": e.status,
+                            **({"detail": e.detail} if e.detail else {})},
     PhaseEvent: lambda e: {"kind": "phase", "to": e.to, "evidence": dict(e.evidence),
                            "by": e.by},
     ForceEvent: lambda e: {"kind": "force", "residual": e.residual},

@@ -22,7 +22,7 @@ from kernel.app.task_settings import TaskSettings, check_home
 from kernel.config.build import build_config, check_keys
 from kernel.config.workspace import workspace_box
 from kernel.core.config import CoreConfig
-from kernel.manifest_cameras import CameraSettings, cameras_table
+from kernel.manifest_cameras import CameraSettings, cameras_table, check_cameras_travel
 from kernel.manifest_tables import (
     decode_driver_settings,
     driver_table,
@@ -141,8 +141,11 @@ def _load(path: Path, raw: str, credentials: bool) -> Manifest:
     check_document(doc, where)
     _refuse_unknown(doc, where)
     written = {key: doc[key] for key in SCENARIO_SECTIONS if key in doc}
-    core = build_config(written, where)
     driver_name, driver = driver_table(doc, where)
+    cameras = cameras_table(doc, where, driver_name)
+    if cameras:  # the core's part of [[cameras]], which the journal's header repeats
+        written["cameras"] = [camera.loss_entry() for camera in cameras]
+    core = build_config(written, where)
     if driver_name != "sim" and core.state_timeout_ns is None:
         raise where.at("timing").error(
             "missing required key 'state_timeout_ms': a real device needs the state watchdog "
@@ -154,20 +157,25 @@ def _load(path: Path, raw: str, credentials: bool) -> Manifest:
     emulator = _read(EmulatorSettings, doc, "emulator", where)
     driver_settings = decode_driver_settings(driver_name, driver, emulator.launch, where)
     policy = _policy(_read(PolicySettings, doc, "policy", where), where.at("policy"))
+    check_cameras_travel(cameras, core.client.protocol, policy, where)
+    cell = _read(CellSettings, doc, "cell", where)
+    if cameras and cell.clock is ClockKind.VIRTUAL:
+        raise where.at("cell").at("clock").error(
+            "a virtual-clock run has no cameras: [[cameras]] see the cell on the wall clock")
     security = _policy_security(policy, where.at("policy"), credentials)
     _check_link_loss_first(core, policy, where)
     return Manifest(
         name=run_name(doc, path, where), path=path, core=core,
         sections=ScenarioSections.of(written),
         driver_name=driver_name, driver_settings=driver_settings, emulator=emulator,
-        cell=_read(CellSettings, doc, "cell", where),
+        cell=cell,
         policy=policy, link_security=security,
         journal=_read(JournalSettings, doc, "journal", where),
         task=_task(doc, where, core),
         operator=_read(OperatorSettings, doc, "operator", where),
         safety=safety_table(doc, where, core.control_period_ns),
         trial=_trial(doc, where),
-        cameras=cameras_table(doc, where, driver_name),
+        cameras=cameras,
     )
 
 

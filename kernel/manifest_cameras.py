@@ -15,8 +15,12 @@ import msgspec
 from msgspec import Meta
 
 from drivers.settings import KeyProblem
+from kernel.config.cameras import GRACE_MAX_MS
+from kernel.core.config import LossAction
 from kernel.scenario.fields import Where
+from kernel.shell.link_settings import PolicyProtocol, PolicySettings
 from kernel.tables import read_table
+from kernel.wire import ImageEncoding
 
 SIM_CAMERAS = ("wrist_rgb", "scene_rgb")
 """The simulated cell's cameras (stubs/plant/cameras.py)."""
@@ -41,6 +45,31 @@ class CameraSettings(msgspec.Struct, frozen=True, kw_only=True):
     rate_hz: Annotated[float, Meta(ge=0.1, le=120.0)] = 10.0
     """How often a simulated camera renders; what a device is expected to deliver."""
     calibration_epoch: Annotated[str, Meta(min_length=1, max_length=64)] = "uncalibrated"
+    encoding: ImageEncoding = ImageEncoding.RAW
+    """How its frames travel: ``raw`` RGB (224×224: 147 KiB) or ``jpeg`` at ``jpeg_quality``
+    (warden's protocol only: openpi takes arrays)."""
+    jpeg_quality: Annotated[int, Meta(ge=1, le=100)] = 90
+    on_loss: LossAction = LossAction.STOP
+    """What losing this camera means: the phase stops at once (``stop``), or goes on with
+    what was admitted for at most ``grace_ms`` (``continue``; kernel/core/cameras.py)."""
+    grace_ms: Annotated[float, Meta(ge=0.0, le=GRACE_MAX_MS)] = 0.0
+    max_frame_age_ms: Annotated[float, Meta(ge=1.0, le=10_000.0)] | None = None
+    """A newest frame older than this is a lost camera (default: three frame periods)."""
+    freeze_frames: Annotated[int, Meta(ge=0, le=600)] = 0
+    """This many identical frames in a row is a frozen camera (0: not watched). Only for a
+    real sensor, whose noise changes every frame; a rendered scene that stands still
+    repeats itself."""
+
+    @property
+    def frame_age_limit_ms(self) -> float:
+        return self.max_frame_age_ms if self.max_frame_age_ms is not None else (
+            3000.0 / self.rate_hz)
+
+    @property
+    def frame_bytes(self) -> int:
+        """The most one frame's pixels take on the wire (a JPEG is never larger in practice,
+        but is bounded by the same figure)."""
+        return self.width * self.height * 3
 
     @property
     def opencv_device(self) -> int | str:
@@ -53,6 +82,22 @@ class CameraSettings(msgspec.Struct, frozen=True, kw_only=True):
             raise KeyProblem("device", "an opencv camera needs its device (index, path or file)")
         if self.source is CameraKind.SIM and self.name not in SIM_CAMERAS:
             raise KeyProblem("name", f"the simulated cell's cameras are {', '.join(SIM_CAMERAS)}")
+        if self.freeze_frames == 1:
+            raise KeyProblem("freeze_frames", "a freeze is at least 2 identical frames (0: off)")
+        if self.source is CameraKind.SIM and self.freeze_frames:
+            raise KeyProblem("freeze_frames", "a rendered scene that stands still repeats "
+                             "itself: freeze_frames is for a real camera")
+        if self.on_loss is LossAction.CONTINUE and not self.grace_ms > 0:
+            raise KeyProblem("grace_ms", 'on_loss = "continue" needs a positive grace_ms')
+        if self.on_loss is LossAction.STOP and self.grace_ms > 0:
+            raise KeyProblem("grace_ms", 'on_loss = "stop" stops at once: no grace_ms')
+
+    def loss_entry(self) -> dict[str, Any]:
+        """What the core knows of it: the scenario form of the ``cameras`` section."""
+        entry: dict[str, Any] = {"name": self.name, "on_loss": str(self.on_loss)}
+        if self.on_loss is LossAction.CONTINUE:
+            entry["grace_ms"] = self.grace_ms
+        return entry
 
 
 def cameras_table(doc: Mapping[str, Any], where: Where, driver_name: str,
@@ -79,3 +124,41 @@ def cameras_table(doc: Mapping[str, Any], where: Where, driver_name: str,
                 "plant runs in its emulator")
         cameras.append(camera)
     return tuple(cameras)
+
+
+IMAGE_PROTOCOL = 3
+"""The first version of warden's wire protocol whose observations carry frames."""
+
+
+def check_cameras_travel(cameras: tuple[CameraSettings, ...], protocol: tuple[int, int],
+                         policy: PolicySettings, where: Where) -> None:
+    """Every camera's frames can reach the policy: over warden's protocol, every version the
+    session may agree carries frames; over openpi's, each camera has the key the server reads
+    it under, and travels as the array openpi takes.
+
+    Raises:
+        ScenarioError: naming the key.
+    """
+    if policy.protocol is PolicyProtocol.OPENPI:
+        _check_openpi_images(cameras, policy, where)
+    elif cameras and protocol[0] < IMAGE_PROTOCOL:
+        raise where.at("session").at("protocol").error(
+            f"frames travel from protocol {IMAGE_PROTOCOL} on: with [[cameras]], the range "
+            f"must start at {IMAGE_PROTOCOL}, got {list(protocol)}")
+
+
+def _check_openpi_images(cameras: tuple[CameraSettings, ...], policy: PolicySettings,
+                         where: Where) -> None:
+    mapped = dict(policy.openpi.images) if policy.openpi is not None else {}
+    names = {camera.name for camera in cameras}
+    for index, camera in enumerate(cameras):
+        if camera.name not in mapped:
+            raise where.at("policy").at("openpi").at("images").error(
+                f"camera {camera.name!r} has no openpi key to travel under")
+        if camera.encoding is not ImageEncoding.RAW:
+            raise where.at("cameras").at(index).at("encoding").error(
+                "openpi takes images as arrays: encoding must be \"raw\"")
+    for name in mapped:
+        if name not in names:
+            raise where.at("policy").at("openpi").at("images").at(name).error(
+                "no [[cameras]] entry of that name")

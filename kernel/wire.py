@@ -11,7 +11,8 @@ an integer number of nanoseconds.
 
 Versions: protocol 1 is the base set of messages; protocol 2 adds :class:`ClockReport`, by which
 the client tells the server the clock offset it measured, so the server can state observation
-times in its own clock. The version in use is the one the handshake agreed.
+times in its own clock; protocol 3 adds camera frames to observations (:class:`WireImage`).
+The version in use is the one the handshake agreed.
 """
 
 from __future__ import annotations
@@ -36,10 +37,17 @@ from assurance.envelope import (
 from assurance.handshake import ClientHello, HandshakeDecision, HandshakeOffer
 from assurance.rtc import PrefixLength, RtcPrefix
 
-PROTOCOL_RANGE: tuple[int, int] = (1, 2)
+PROTOCOL_RANGE: tuple[int, int] = (1, 3)
+IMAGE_PROTOCOL = 3
+"""The first version whose observations carry camera frames."""
 MAX_FRAME_BYTES = 1 << 20
-"""The protocol's ceiling on a frame; a client may configure a lower limit (the manifest's
-``policy.max_frame_bytes``). Larger frames are refused by the transport (close 1009)."""
+"""The protocol's ceiling on a chunk frame; a client may configure a lower limit (the
+manifest's ``policy.max_frame_bytes``). Larger frames are refused by the transport (close
+1009). An observation with frames may be larger: :func:`observation_frame_bytes`."""
+MAX_IMAGES = 8
+MAX_IMAGE_SIDE = 4096
+OBSERVATION_OVERHEAD_BYTES = 1 << 16
+"""What the frames' own fields (names, times, digests, epochs) add to their pixels, at most."""
 SERVER_CLOCK_DOMAIN = "server"
 """The ``clock_domain`` of the server's times, and the domain of the client's clock sync."""
 MAX_CLOCK_OFFSET_NS = 2**62
@@ -160,6 +168,29 @@ class WirePrefix(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_field
     horizon: PrefixLength
 
 
+class ImageEncoding(StrEnum):
+    RAW = "raw"
+    """``uint8`` RGB, ``height × width × 3`` bytes, row-major."""
+    JPEG = "jpeg"
+    """A JPEG file's bytes (baseline, RGB)."""
+
+
+class WireImage(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    """One camera frame in an observation (protocol 3): the pixels, when and under which
+    calibration they were taken, and the digest of the raw RGB image (``sha256`` over its shape
+    and bytes, first 128 bits: what the journal keeps)."""
+
+    camera: Annotated[str, msgspec.Meta(min_length=1, max_length=64)]
+    encoding: ImageEncoding
+    height: Annotated[int, msgspec.Meta(ge=1, le=MAX_IMAGE_SIDE)]
+    width: Annotated[int, msgspec.Meta(ge=1, le=MAX_IMAGE_SIDE)]
+    data: bytes
+    t_capture: WireTime
+    """Client clock when the frame was taken."""
+    digest: Annotated[str, msgspec.Meta(min_length=1, max_length=64)]
+    calibration_epoch: Annotated[str, msgspec.Meta(min_length=1, max_length=64)]
+
+
 class Observation(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     """What a real robot sends: its own measurements and the context it is in, nothing more.
 
@@ -179,6 +210,13 @@ class Observation(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     rtc: WirePrefix | None = None
     """Real-time chunking, to a server that offered it: what warden committed from
     ``t_event`` on (assurance/rtc.py)."""
+    images: Annotated[tuple[WireImage, ...], msgspec.Meta(max_length=MAX_IMAGES)] = ()
+    """Protocol 3: the cameras' frames, one per camera of the session's observation keys;
+    ``t_event`` is then no later than the oldest ``t_capture``."""
+    t_state: WireTime | None = None
+    """Protocol 3, with frames: when ``q``, ``qd``, ``wrench`` and ``gripper`` were read
+    (``t_event`` is the oldest frame's time, earlier); a policy extrapolates the joints from
+    here, and counts the observation's age from ``t_event``."""
 
 
 class Heartbeat(msgspec.Struct, frozen=True, kw_only=True):
@@ -274,12 +312,26 @@ def _why(error: Exception) -> str:
 # ---------------------------------------------------------------------------------------------
 
 
+def image_payload(camera: str, encoding: ImageEncoding, image: np.ndarray, data: bytes,
+                  t_capture: int, digest: str, calibration_epoch: str) -> WireImage:
+    """One frame as an observation carries it (``data``: ``image``'s bytes, raw or JPEG)."""
+    height, width = image.shape[:2]
+    return WireImage(camera=camera, encoding=encoding, height=height, width=width, data=data,
+                     t_capture=t_capture, digest=digest, calibration_epoch=calibration_epoch)
+
+
 def prefix_payload(prefix: RtcPrefix) -> WirePrefix:
     """The committed prefix as an observation carries it."""
     actions = np.array(prefix.actions, dtype="<f8")
     return WirePrefix(actions=ArrayPayload.from_array(actions),
                       first_action_time=prefix.first_due, action_dt=prefix.action_dt,
                       delay=prefix.delay, horizon=prefix.horizon)
+
+
+def observation_frame_bytes(image_bytes: int) -> int:
+    """The largest observation frame whose frames hold ``image_bytes`` of pixels in all: what
+    a server sizes its frame limit from (the manifest's cameras)."""
+    return MAX_FRAME_BYTES + image_bytes + OBSERVATION_OVERHEAD_BYTES
 
 
 def vector_payload(values: np.ndarray | tuple[float, ...]) -> ArrayPayload:

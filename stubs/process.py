@@ -21,7 +21,7 @@ from stubs.child import PARENT_PID
 
 
 @contextlib.contextmanager
-def _children_at_ordinary_priority() -> Iterator[None]:
+def children_at_ordinary_priority() -> Iterator[None]:
     """A child inherits the starting thread's scheduling policy: started from warden's control
     loop thread it would run at the loop's SCHED_FIFO priority and take the CPU from the loop.
     ``SCHED_RESET_ON_FORK`` while spawning gives it SCHED_OTHER. (warden's own spawns use
@@ -57,7 +57,7 @@ class EmulatorProcess:
         self.stop()
 
     def start(self) -> EmulatorProcess:
-        with _children_at_ordinary_priority():  # never at the control loop's SCHED_FIFO
+        with children_at_ordinary_priority():  # never at the control loop's SCHED_FIFO
             self._proc = subprocess.Popen(
                 self.command, stdout=subprocess.PIPE, stderr=None, start_new_session=True,
                 env={**os.environ, "PYTHONUNBUFFERED": "1", PARENT_PID: str(os.getpid())},

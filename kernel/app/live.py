@@ -9,6 +9,7 @@ link: the core degrades, the link is restarted and must handshake again).
 from __future__ import annotations
 
 import asyncio
+import functools
 import gc
 import threading
 from collections.abc import Callable
@@ -18,6 +19,7 @@ from typing import Any
 import structlog
 
 from kernel.app import standins
+from kernel.app.cameras import camera_hub
 from kernel.app.compose import source_of
 from kernel.app.interrupt import StopSignals
 from kernel.app.operator import operator_server
@@ -33,6 +35,7 @@ from kernel.app.session import (
 )
 from kernel.core.events import LinkEvent, LinkStatus
 from kernel.manifest import Manifest
+from kernel.shell.cameras import CameraHub
 from kernel.shell.client import RobotClient
 from kernel.shell.heartbeat import HeartbeatSender
 from kernel.shell.link_budget import AdmissionPacer
@@ -86,6 +89,7 @@ async def _run_live(manifest: Manifest, journal_dir: Path | None,
     loop.heartbeat = _heartbeat(manifest)
     context.heartbeat = loop.heartbeat.stats if loop.heartbeat.enabled else None
     client: RobotClient | None = None
+    cameras: CameraHub | None = None
     try:
         # A stop requested during start-up (device bring-up, policy server start) is kept and
         # honoured before the first tick, through the same orderly shutdown.
@@ -98,11 +102,19 @@ async def _run_live(manifest: Manifest, journal_dir: Path | None,
                 context.cell.context))
             url = server.start()
         if not stop.requested:
+            cameras = camera_hub(manifest, context.cell.world, context.cell.gateway.now_ns)
+        if cameras is not None:  # every camera sees before anything moves
+            cameras.start()
+            await asyncio.to_thread(cameras.wait_first_frames)
+        if not stop.requested:
             client = RobotClient(ClientConfig(url=url, policy=manifest.policy,
                                               security=security),
-                                 context.cell.gateway, pacer=loop.pacer, server=server)
-            await _supervise(context, client, worker, operator, loop, failures)
+                                 context.cell.gateway, pacer=loop.pacer, server=server,
+                                 cameras=cameras)
+            await _supervise(context, client, worker, operator, loop, failures, cameras)
     finally:
+        if cameras is not None:
+            await asyncio.to_thread(cameras.stop)
         context.cell.controller.cut_short(cut_short_reason(
             context, stop, failures, ended_by_hook=loop.ended_by_hook))
         service.stopping("holding the arm and closing the device")
@@ -232,7 +244,8 @@ class _Loop:
 
 
 async def _supervise(context: RunContext, client: RobotClient, worker: JobWorker,
-                     operator: OperatorServer | None, loop: _Loop, failures: list[str]) -> None:
+                     operator: OperatorServer | None, loop: _Loop, failures: list[str],
+                     cameras: CameraHub | None) -> None:
     def failed(name: str, error: BaseException) -> None:
         task_failed(context, failures, name, error)
 
@@ -261,6 +274,10 @@ async def _supervise(context: RunContext, client: RobotClient, worker: JobWorker
         await supervisor.start("jobs", worker.run, critical=True)
         if operator is not None:  # a real device's only way back from a fallback: critical
             await supervisor.start("operator", operator.run, critical=context.cell.real_device)
+        if cameras is not None:  # unwatched, a lost camera would never reach the core
+            gateway = context.cell.gateway
+            await supervisor.start("cameras", functools.partial(
+                cameras.watch, gateway.now_ns, gateway.feed), critical=True)
         await supervisor.start("policy-link", link, critical=False,
                                restart=RestartPolicy(max_restarts=10))
         await supervisor.start("control", control, critical=True)

@@ -20,6 +20,7 @@ from assurance.clock import ms_to_ns
 from assurance.limits import JointLimits
 from assurance.policy import ForceBand, LinkLoss, PhasePolicy
 from assurance.watermarks import WatermarkConfig
+from kernel.config.cameras import cameras_section
 from kernel.config.envelope import trial_bounds
 from kernel.config.geometry import cell_collision
 from kernel.config.kinematics import cartesian_mapper, robot_kinematics
@@ -123,6 +124,7 @@ def build_config(doc: Mapping[str, Any], where: Where,
         motion=motion_config(mapping(doc, "motion", where, required=False), where.at("motion")),
         envelope=trial_bounds(doc, where, kinematics, envelope),
         collision=cell_collision(doc, where, kinematics),
+        cameras=cameras_section(doc, where, client.observation_keys),
     )
 
 

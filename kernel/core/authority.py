@@ -126,7 +126,10 @@ def _tool_inside(state: CoreState, q: np.ndarray) -> bool:
 
 
 def on_observation(state: CoreState, event: ObservationEvent) -> None:
-    state.observations.record(event.observation_id, state.t, event.rtc, state.queue_version)
+    """The observation is as old as the oldest thing it shows: its oldest frame, or the joint
+    reading of the instant it was sent."""
+    taken = min([state.t, *(frame.t_capture for frame in event.frames)])
+    state.observations.record(event.observation_id, taken, event.rtc, state.queue_version)
 
 
 def on_force(state: CoreState, event: ForceEvent) -> None:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from enum import StrEnum
 
 import numpy as np
 
@@ -80,6 +81,27 @@ class TrialBounds:
     max_force_n: float
 
 
+class LossAction(StrEnum):
+    """What losing a camera means (``[[cameras]] on_loss``)."""
+
+    STOP = "stop"
+    """The phase stops at once: SAFE_HOLD (CAMERA_LOST)."""
+    CONTINUE = "continue"
+    """The arm finishes what was admitted while the camera saw, and no new observation goes
+    out; not back within ``grace``, the phase stops as with ``stop``."""
+
+
+@dataclass(frozen=True, slots=True)
+class CameraLoss:
+    """One camera the policy sees through, as the core knows it: its name and what losing it
+    means."""
+
+    name: str
+    on_loss: LossAction = LossAction.STOP
+    grace_ns: int = 0
+    """``continue`` only: how long the arm may go on without it."""
+
+
 @dataclass(frozen=True, slots=True, eq=False)
 class CoreConfig:
     limits: JointLimits
@@ -113,6 +135,9 @@ class CoreConfig:
     """The cell's geometry (``[geometry]``): every chunk's actions, and the motion between
     them, keep their clearance from the cell's solids and the arm's own links (COLLISION);
     None: no geometry, no such check."""
+    cameras: tuple[CameraLoss, ...] = ()
+    """The cameras observations carry (the ``cameras`` section): losing one stops the phase,
+    at once or after its grace (:mod:`kernel.core.cameras`)."""
 
     def __post_init__(self) -> None:
         if self.control_period_ns <= 0:

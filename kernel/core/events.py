@@ -27,6 +27,17 @@ class LinkStatus(StrEnum):
     UP = "up"
 
 
+class CameraStatus(StrEnum):
+    """What the shell's camera watch saw of one camera (kernel/shell/cameras.py)."""
+
+    LOST = "lost"
+    """No frame, or none newer than the camera's ``max_frame_age_ms``."""
+    FROZEN = "frozen"
+    """The same picture ``freeze_frames`` times in a row: a sensor that stopped seeing."""
+    BACK = "back"
+    """Fresh, changing frames again."""
+
+
 class ControllerStatus(StrEnum):
     OK = "ok"
     REJECT = "reject"
@@ -63,11 +74,33 @@ class StateEvent(msgspec.Struct, frozen=True, kw_only=True):
     force_residual: float | None = None
 
 
+class FrameStamp(msgspec.Struct, frozen=True, kw_only=True):
+    """One camera frame an observation carried, as the journal keeps it: not the pixels."""
+
+    camera: str
+    t_capture: int
+    """The robot's clock when the frame was taken (ns)."""
+    digest: str
+    calibration_epoch: str
+
+
 class ObservationEvent(msgspec.Struct, frozen=True, kw_only=True):
     t: int
+    """When it was sent; its age counts from the oldest of its frames, if that is older."""
     observation_id: str
     rtc: RtcPrefix | None = None
     """The committed prefix the observation carried (real-time chunking), as it was sent."""
+    frames: tuple[FrameStamp, ...] = ()
+    """The camera frames it carried (protocol 3)."""
+
+
+class CameraEvent(msgspec.Struct, frozen=True, kw_only=True):
+    """A camera of the manifest was lost, froze, or came back (``detail``: what was seen)."""
+
+    t: int
+    camera: str
+    status: CameraStatus
+    detail: str = ""
 
 
 class PhaseEvent(msgspec.Struct, frozen=True, kw_only=True):
@@ -196,11 +229,12 @@ class ChunkEvent:
 Event = (
     StateEvent | ObservationEvent | PhaseEvent | ForceEvent | OodEvent | LinkEvent
     | HandshakeEvent | OperatorEvent | ControllerEvent | ClockSyncEvent | TickEvent | ChunkEvent
-    | MoveEvent | GripperEvent | InsertEvent | ComputedEvent | RecorderEvent
+    | MoveEvent | GripperEvent | InsertEvent | ComputedEvent | RecorderEvent | CameraEvent
 )
 
 OPERATOR_ACTIONS = tuple(OperatorAction)
 CONTROLLER_STATUSES = tuple(ControllerStatus)
 LINK_STATUSES = tuple(LinkStatus)
+CAMERA_STATUSES = tuple(CameraStatus)
 RECORDER_FAULTS = tuple(RecorderFault)
 REQUESTERS = tuple(Requester)

@@ -170,8 +170,21 @@ class MotionLine(msgspec.Struct, frozen=True, kw_only=True, tag_field="kind", ta
     detail: str | None = None
 
 
+class CameraLine(msgspec.Struct, frozen=True, kw_only=True, tag_field="kind", tag="camera",
+                 omit_defaults=True):
+    """A camera was lost, froze or came back, and what losing it means (``on_loss``;
+    ``grace_ms`` for ``continue``)."""
+
+    t: Ms
+    camera: str
+    status: str
+    on_loss: str
+    grace_ms: Ms | None = None
+    detail: str | None = None
+
+
 Line = (ChunkLine | TickLine | TransitionLine | HandshakeLine | QueueLine | RequestLine
-        | MotionLine)
+        | MotionLine | CameraLine)
 
 _encoder = msgspec.json.Encoder()
 

@@ -19,9 +19,11 @@ from assurance.reasons import ReasonCode
 from assurance.rtc import Committed, committed_prefix
 from kernel.core import authority
 from kernel.core.admit import admit, on_computed
+from kernel.core.cameras import on_camera
 from kernel.core.config import CoreConfig
 from kernel.core.effects import Step
 from kernel.core.events import (
+    CameraEvent,
     ChunkEvent,
     ClockSyncEvent,
     ComputedEvent,
@@ -70,6 +72,7 @@ _HANDLERS: dict[type, Callable[[CoreState, Any], None]] = {
     GripperEvent: authority.on_gripper,
     InsertEvent: authority.on_insert,
     RecorderEvent: authority.on_recorder,
+    CameraEvent: on_camera,
     TickEvent: lambda state, event: tick(state),
 }
 

@@ -76,6 +76,8 @@ class CoreState:
     plausible: Track | None = None
     """The last plausible state sample and what followed it (:mod:`assurance.plausibility`)."""
     plausibility: Bounds | None = None
+    cameras_down: dict[str, int] = field(default_factory=dict)
+    """Cameras lost or frozen, and since when (:mod:`kernel.core.cameras`)."""
 
     @classmethod
     def initial(cls, config: CoreConfig) -> CoreState:

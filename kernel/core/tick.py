@@ -20,6 +20,7 @@ from assurance.policy import LinkLoss
 from assurance.queue import Row, SentRow
 from assurance.reasons import ReasonCode as R
 from kernel.core.authority import outside_envelope, validate
+from kernel.core.cameras import cameras_seeing, check_cameras
 from kernel.core.effects import Motion, RequestObservation
 from kernel.core.lines import QueueAction, QueueLine, RequestLine, SentRef, TickLine
 from kernel.core.motion import MotionContext, motion_for
@@ -45,6 +46,7 @@ def tick(state: CoreState) -> TickCommand:
     _stall(state)
     state.last_tick = state.t
     _watchdog(state)
+    check_cameras(state)
     if state.task.phase is TaskPhase.VALIDATE:
         validate(state)
     row = _row_in_force(state) if state.fallback.mode is Mode.RUNNING else None
@@ -221,7 +223,8 @@ def _maybe_request(state: CoreState) -> None:
     marks = state.watermarks
     if marks is None:
         return
-    allowed = state.accepts_proposals and state.link_up and state.session is not None
+    allowed = (state.accepts_proposals and state.link_up and state.session is not None
+               and cameras_seeing(state))
     depth = state.queue.depth_ns(state.t)
     if marks.should_request(state.t, depth, allowed):
         rows = state.queue.pending_rows(state.t)

@@ -25,11 +25,14 @@ from assurance.rtc import MAX_PREFIX_ROWS, RtcPrefix
 from kernel.config.session import state_vector
 from kernel.core.effects import Motion
 from kernel.core.events import (
+    CAMERA_STATUSES,
     CONTROLLER_STATUSES,
     LINK_STATUSES,
     OPERATOR_ACTIONS,
     RECORDER_FAULTS,
     REQUESTERS,
+    CameraEvent,
+    CameraStatus,
     ChunkEvent,
     ClockSyncEvent,
     ComputedEvent,
@@ -37,6 +40,7 @@ from kernel.core.events import (
     ControllerStatus,
     Event,
     ForceEvent,
+    FrameStamp,
     GripperEvent,
     HandshakeEvent,
     InsertEvent,
@@ -73,6 +77,8 @@ Item = Event | CommandRecord
 """What a scenario or journal line is: an event for the core, or (journals) a command record
 that a replay compares with the command it decides."""
 Parser = Callable[[int, Mapping[str, Any], Where, JointLimits], Item]
+MAX_FRAMES = 16
+"""Cameras one observation may carry (a cell has two or three)."""
 
 
 def parse_events(raw: Any, where: Where, limits: JointLimits) -> list[Item]:
@@ -131,7 +137,36 @@ def _residual(raw: Any, where: Where) -> float | None:
 def _observation(t: int, item: Mapping[str, Any], where: Where, _: JointLimits) -> Event:
     prefix = None if item.get("rtc") is None else _prefix(mapping(item, "rtc", where),
                                                            where.at("rtc"))
-    return ObservationEvent(t=t, observation_id=text(item, "observation_id", where), rtc=prefix)
+    return ObservationEvent(t=t, observation_id=text(item, "observation_id", where), rtc=prefix,
+                            frames=_frames(item.get("frames", []), where.at("frames")))
+
+
+def _frames(raw: Any, where: Where) -> tuple[FrameStamp, ...]:
+    """The frames an observation carried: ``{camera, t_capture, digest, calibration_epoch}``
+    (``t_capture`` exact, in ns)."""
+    if not isinstance(raw, list) or len(raw) > MAX_FRAMES:
+        raise where.error(f"must be a list of at most {MAX_FRAMES} frames")
+    frames = []
+    for index, entry in enumerate(raw):
+        at = where.at(index)
+        if not isinstance(entry, Mapping):
+            raise at.error("must be an object")
+        frames.append(FrameStamp(
+            camera=text(entry, "camera", at, numbers_ok=False),
+            t_capture=integer(entry, "t_capture", at, minimum=-MAX_EVENT_NS,
+                              maximum=MAX_EVENT_NS),
+            digest=text(entry, "digest", at, numbers_ok=False),
+            calibration_epoch=text(entry, "calibration_epoch", at)))
+    return tuple(frames)
+
+
+def _camera(t: int, item: Mapping[str, Any], where: Where, _: JointLimits) -> Event:
+    status = CameraStatus(choice(item, "status", where, CAMERA_STATUSES))
+    detail = item.get("detail", "")
+    if not isinstance(detail, str):
+        raise where.at("detail").error("must be a string")
+    return CameraEvent(t=t, camera=text(item, "camera", where, numbers_ok=False),
+                       status=status, detail=detail)
 
 
 def _prefix(item: Mapping[str, Any], where: Where) -> RtcPrefix:
@@ -282,6 +317,7 @@ def _tick(t: int, item: Mapping[str, Any], where: Where, _: JointLimits) -> Even
 _PARSERS: dict[str, Parser] = {
     "state": _state,
     "observation": _observation,
+    "camera": _camera,
     "chunk": _chunk,
     "phase": _phase,
     "force": _force,

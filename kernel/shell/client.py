@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import dataclasses
 from collections import deque
 
 import structlog
@@ -57,6 +58,7 @@ from kernel.shell.link_protocol import (
 from kernel.shell.link_security import why_refused
 from kernel.shell.link_settings import PolicyProtocol
 from kernel.shell.link_types import (
+    CameraFrames,
     ClientConfig,
     Gateway,
     LaunchedServer,
@@ -72,8 +74,10 @@ log = structlog.get_logger("warden.link")
 class RobotClient:
     def __init__(self, config: ClientConfig, gateway: Gateway, *,
                  pacer: AdmissionPacer | None = None,
-                 server: LaunchedServer | None = None) -> None:
+                 server: LaunchedServer | None = None,
+                 cameras: CameraFrames | None = None) -> None:
         self.config = config
+        self._cameras = cameras
         self.url = config.url
         self.counters = LinkCounters()
         self.state = LinkState.IDLE
@@ -319,6 +323,8 @@ class RobotClient:
         while True:
             await self._wanted.wait()
             self._wanted.clear()
+            if self._cameras is not None:  # a rendered camera draws the cell as it is now
+                await self._cameras.fresh(self._gateway.now_ns(), self._gateway.now_ns)
             self._apply(self.link_protocol.request(self._gateway.now_ns()))
 
     def _apply(self, outputs: list[Output]) -> None:
@@ -338,15 +344,25 @@ class RobotClient:
             elif isinstance(output, ChunksWaiting):
                 self._intake.wake()
             elif isinstance(output, ObservationDue):
-                now = gateway.now_ns()
-                sample = gateway.capture_observation(output.prefix_grid_ns, now)
-                self._apply(protocol.observe(sample, now,
-                                             gateway.client_side_hello().queue_epoch))
+                self._observe(output)
             elif isinstance(output, Ended):
                 self._end_with(LinkEnded(output.bye, output.detail))
         deadline = protocol.next_deadline()
         if deadline is not None and (self._armed_ns is None or deadline < self._armed_ns):
             self._rearm.set()  # the timer task sleeps until a later instant: wake it
+
+    def _observe(self, due: ObservationDue) -> None:
+        """Capture the robot and its cameras, and send the observation; with a camera that has
+        no fresh frame nothing goes out (the core requests again once it is back)."""
+        gateway = self._gateway
+        now = gateway.now_ns()
+        images = self._cameras.images(now) if self._cameras is not None else ()
+        if images is None:
+            return
+        sample = dataclasses.replace(gateway.capture_observation(due.prefix_grid_ns, now),
+                                     images=images)
+        self._apply(self.link_protocol.observe(sample, now,
+                                               gateway.client_side_hello().queue_epoch))
 
     def _decide(self, offer: HandshakeOffer) -> None:
         """The core decides; the client only carries its decision back to the server."""

@@ -13,8 +13,9 @@ itself:
   configuration and a changed server is refused on reconnect.
 - **Each chunk's envelope** comes from the one request in flight, on the robot's clock: its
   ``observation_id``, ``task_phase``, ``queue_epoch`` and state fingerprint are the
-  observation's, ``first_action_time`` is the observation's instant (openpi's actions start at
-  the state they were computed from: an expired prefix is trimmed or refused by the phase's
+  observation's, ``observation_event_time`` is its oldest frame's capture time (its age counts
+  from there), ``first_action_time`` the instant its joints were read (openpi's actions start
+  at the state they were computed from: an expired prefix is trimmed or refused by the phase's
   rule), ``action_dt`` is the manifest's, ``chunk_id`` and ``sequence`` are the link's own. No
   server-side time is invented: ``inference_start``/``end`` stay absent.
 - **The link's liveness** is the request's: a reply not back within the request timeout ends
@@ -76,6 +77,8 @@ class OpenpiLink(msgspec.Struct, frozen=True, kw_only=True):
     state_key: str = "observation/state"
     prompt_key: str = "prompt"
     prompt: str | None = None
+    image_keys: dict[str, str] = {}
+    """Camera name → the observation key the server reads its frames under."""
 
     @classmethod
     def of(cls, policy: PolicySettings) -> OpenpiLink:
@@ -86,13 +89,17 @@ class OpenpiLink(msgspec.Struct, frozen=True, kw_only=True):
         return cls(policy_checkpoint=openpi.policy_checkpoint,
                    action_dt_ns=round(policy.action_dt_ms * 1e6),
                    max_horizon=policy.chunk_horizon, state_key=openpi.state_key,
-                   prompt_key=openpi.prompt_key, prompt=openpi.prompt)
+                   prompt_key=openpi.prompt_key, prompt=openpi.prompt,
+                   image_keys=dict(openpi.images))
 
 
 @dataclass(slots=True)
 class _Request:
     observation_id: str
     t_event: int
+    """The observation's time: its oldest frame's, else when the joints were read."""
+    t_state: int
+    """When the joints were read: openpi's first action follows the state."""
     queue_epoch: int
     task_phase: str
     q: tuple[float, ...]
@@ -256,12 +263,17 @@ class OpenpiProtocol:
             self.link.state_key: np.asarray(state, dtype=np.float64)}
         if self.link.prompt is not None:
             values[self.link.prompt_key] = self.link.prompt
+        for image in sample.images:  # uint8 H×W×3, as openpi's image transforms take them
+            values[self.link.image_keys[image.frame.camera]] = image.frame.image
         data = encode_observation(values)
-        self._in_flight = _Request(observation_id, now_ns, queue_epoch, str(sample.task_phase),
-                                   tuple(float(v) for v in sample.q))
+        taken = min(now_ns, sample.taken_ns if sample.images else now_ns)
+        self._in_flight = _Request(observation_id, taken, now_ns, queue_epoch,
+                                   str(sample.task_phase), tuple(float(v) for v in sample.q))
         self._reply_by = now_ns + self.timing.request_timeout_ns
         self.counters.observations_sent += 1
-        return [Feed(ev.ObservationEvent(t=now_ns, observation_id=observation_id)), Send(data)]
+        stamps = tuple(image.stamp() for image in sample.images)
+        return [Feed(ev.ObservationEvent(t=now_ns, observation_id=observation_id,
+                                         frames=stamps)), Send(data)]
 
     @property
     def chunks_waiting(self) -> int:
@@ -293,7 +305,7 @@ class OpenpiProtocol:
             config_hash=self._config_hash, skill=hello.skill, skill_version=hello.skill_version,
             task_phase=request.task_phase, controller_mode=hello.controller_mode,
             calibration_epoch=hello.calibration_epoch, observation_id=request.observation_id,
-            observation_event_time=request.t_event, first_action_time=request.t_event,
+            observation_event_time=request.t_event, first_action_time=request.t_state,
             action_dt=self.link.action_dt_ns, actions=ArrayPayload.from_array(actions),
             state_fingerprint=StateFingerprint(q=request.q)))
         chunk = decode_wire_chunk(body, now_ns)

@@ -367,16 +367,23 @@ class WardenProtocol:
         return []
 
     def observe(self, sample: RobotSample, now_ns: int, queue_epoch: int) -> list[Output]:
+        """One observation of ``sample``, sent ``now_ns``; it is as old as its oldest frame
+        (frames travel from protocol 3 on: the manifest allows no lower version with cameras)."""
         observation_id = f"{self.client_id}/{next(self._observation_ids)}"
         prefix = self._rtc.prefix(sample.committed, now_ns)
+        images = sample.images if (self.version or 0) >= wire.IMAGE_PROTOCOL else ()
+        taken = min(now_ns, sample.taken_ns if images else now_ns)
         frame = self._send(wire.Observation(
-            observation_id=observation_id, t_event=now_ns, queue_epoch=queue_epoch,
+            observation_id=observation_id, t_event=taken, queue_epoch=queue_epoch,
             task_phase=str(sample.task_phase), q=wire.vector_payload(sample.q),
             qd=wire.optional_payload(sample.qd), wrench=wire.optional_payload(sample.wrench),
-            gripper=sample.gripper, rtc=None if prefix is None else wire.prefix_payload(prefix)))
+            gripper=sample.gripper, rtc=None if prefix is None else wire.prefix_payload(prefix),
+            images=tuple(image.payload() for image in images),
+            t_state=now_ns if images else None))
         self._window.sent(observation_id, now_ns)
         self.counters.observations_sent += 1
-        return [Feed(ev.ObservationEvent(t=now_ns, observation_id=observation_id, rtc=prefix)),
+        return [Feed(ev.ObservationEvent(t=now_ns, observation_id=observation_id, rtc=prefix,
+                                         frames=tuple(image.stamp() for image in images))),
                 frame]
 
     @property

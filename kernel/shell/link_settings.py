@@ -56,6 +56,10 @@ class OpenpiSettings(msgspec.Struct, frozen=True, kw_only=True):
     prompt_key: Annotated[str, Meta(min_length=1, max_length=128)] = "prompt"
     prompt: Annotated[str, Meta(max_length=1024)] | None = None
     """The task's instruction, sent with every observation (None: no prompt key)."""
+    images: dict[Annotated[str, Meta(min_length=1, max_length=64)],
+                 Annotated[str, Meta(min_length=1, max_length=128)]] = {}
+    """Each ``[[cameras]]`` name → the observation key the server reads its frames under
+    (``wrist_rgb = "observation/wrist_image"``), sent as ``uint8`` H×W×3 arrays."""
 
 
 FilePath = Annotated[str, Meta(min_length=1, max_length=4096)]

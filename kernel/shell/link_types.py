@@ -13,11 +13,32 @@ import numpy as np
 from assurance.clock import ms_to_ns
 from assurance.handshake import ClientHello
 from assurance.rtc import Committed
+from drivers.camera import CameraFrame
 from kernel import wire
 from kernel.core import events as ev
 from kernel.core.effects import Step
 from kernel.shell.link_credentials import LinkSecurity
 from kernel.shell.link_settings import PolicySettings
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class SeenImage:
+    """A camera's newest frame, ready to travel: ``data`` is its pixels as the manifest asks
+    them sent (raw RGB bytes, or a JPEG file)."""
+
+    frame: CameraFrame
+    encoding: wire.ImageEncoding
+    data: bytes
+
+    def payload(self) -> wire.WireImage:
+        f = self.frame
+        return wire.image_payload(f.camera, self.encoding, f.image, self.data, f.t_capture_ns,
+                                  f.digest, f.calibration_epoch)
+
+    def stamp(self) -> ev.FrameStamp:
+        f = self.frame
+        return ev.FrameStamp(camera=f.camera, t_capture=f.t_capture_ns, digest=f.digest,
+                             calibration_epoch=f.calibration_epoch)
 
 
 @dataclass(frozen=True, slots=True)
@@ -32,6 +53,25 @@ class RobotSample:
     committed: Committed | None = None
     """Real-time chunking: the committed actions from the one in force now on, one per step of
     the grid the link asked for (None: not asked for)."""
+    images: tuple[SeenImage, ...] = ()
+    """Each camera's newest frame (the manifest's ``[[cameras]]``; none without cameras)."""
+
+    @property
+    def taken_ns(self) -> int | None:
+        """When the oldest of its frames was taken (None: it carries none)."""
+        return min((image.frame.t_capture_ns for image in self.images), default=None)
+
+
+class CameraFrames(Protocol):
+    """Where the link takes an observation's frames (kernel/shell/cameras.py)."""
+
+    def images(self, now_ns: int) -> tuple[SeenImage, ...] | None:
+        """Every camera's newest frame; None when one has none fresh enough to send."""
+        ...
+
+    async def fresh(self, since_ns: int, now_ns: Callable[[], int]) -> None:
+        """Wait (bounded) for the cameras that take pictures on request to take one."""
+        ...
 
 
 class Gateway(Protocol):

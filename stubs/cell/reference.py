@@ -116,6 +116,8 @@ def server_args(manifest: Manifest, goal: np.ndarray, host: str, port: int) -> l
         "--protocol", f"{offer.protocol[0]},{offer.protocol[1]}",
         "--replacement-policy", "blend",
         *(["--rtc"] if settings.rtc else []),
+        *(arg for camera in manifest.cameras
+          for arg in ("--camera", f"{camera.name}:{camera.width}x{camera.height}")),
     ]
 
 

@@ -13,16 +13,22 @@ itself still moves only when warden's loop steps it.
 
 from __future__ import annotations
 
+import dataclasses
 import threading
+from collections.abc import Callable
 from typing import Any
 
 import msgspec
+import numpy as np
 
 from drivers.base import Driver
+from drivers.camera import CameraSource
 from drivers.sim.driver import SimDriver
 from kernel.manifest import Manifest, ManifestError
+from kernel.manifest_cameras import CameraSettings
 from stubs.fault_control import FaultControlServer
 from stubs.plant.brake import BrakedPlant
+from stubs.plant.cameras import SIM_SPECS, RenderedCameras
 from stubs.plant.mujoco_plant import MujocoPlant
 from stubs.plant.world_port import world_handlers
 from stubs.reading_glitch import ReadingGlitch
@@ -83,6 +89,20 @@ class SimWorld:
     def feed_part(self) -> None:
         with self._lock:
             self.plant.respawn_peg()
+
+    def sim_camera(self, camera: CameraSettings, clock: Callable[[], int]) -> CameraSource:
+        """One of the cell's cameras, rendered from this plant's joints on a thread of its own
+        (stubs/plant/cameras.py), its frames stamped by ``clock`` (the run's)."""
+        spec = dataclasses.replace(SIM_SPECS[camera.name], width=camera.width,
+                                   height=camera.height)
+
+        def qpos() -> np.ndarray:
+            with self._lock:
+                return self.plant.data.qpos.copy()
+
+        rendered = RenderedCameras((spec,), camera.rate_hz, qpos, camera.calibration_epoch,
+                                   clock)
+        return rendered.camera(camera.name)
 
     def inject(self, fault: str, **fields: Any) -> dict[str, Any]:
         """What the control port answers, in process (a lockstep run's hooks)."""

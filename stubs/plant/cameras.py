@@ -1,22 +1,26 @@
-"""The simulated cell's cameras: a wrist camera on the gripper and a scene camera over the
-table, rendered offscreen (EGL, no display) in the plant's process.
+"""The simulated cell's cameras: a wrist camera on the gripper and a scene camera over the table,
+rendered offscreen (EGL, no display) from the plant's joints.
 
-Rendering a 224 × 224 frame costs about 6 ms here: never on the control loop's thread.
-:class:`RenderedCameras` owns one thread (and its GL context, which is bound to it) that, at
-the rate asked for, copies the plant's joint positions (``qpos``: the caller's function, which
-takes the plant's lock if it has one), poses a private copy of the cell's model with them and
-renders every camera; each :class:`RenderedCamera` hands out its newest frame as a
+Rendering a 224 × 224 frame costs about 1 ms here without shadows and reflections (20 ms with),
+and MuJoCo's renderer holds the GIL while it draws: on a thread of warden's process it stalled
+the 2 ms control loop by up to 8 ms. So the pixels are drawn by a child process
+(:mod:`stubs.plant.render_worker`, started with ``MUJOCO_GL=egl``), as a real camera is a device
+of its own. :class:`RenderedCameras` owns one thread that, at the rate asked for, copies the
+plant's joint positions (``qpos``: the caller's function, which takes the plant's lock if it has
+one), stamps the capture time, hands them to the child and waits for its pixels (pipe I/O,
+without the GIL); each :class:`RenderedCamera` hands out its newest frame as a
 :class:`~drivers.camera.CameraSource`. The cameras are added to a copy of the cell's model
-(``stubs/robot_model/cell.xml``) for rendering only: the plant's own model, and so its
-dynamics, are untouched.
-
-Offscreen rendering needs ``MUJOCO_GL=egl`` in the environment before MuJoCo is first imported
-(MuJoCo picks its GL platform then; the tests' conftest sets it).
+(``stubs/robot_model/cell.xml``) for rendering only: the plant's own model, and so its dynamics,
+are untouched.
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
+import struct
+import subprocess
+import sys
 import threading
 import time
 from collections.abc import Callable
@@ -27,6 +31,8 @@ import numpy as np
 
 import stubs.robot_model as rm
 from drivers.camera import CameraFrame, CameraLost, make_frame
+from stubs.child import PARENT_PID
+from stubs.process import children_at_ordinary_priority
 
 
 @dataclass(frozen=True, slots=True)
@@ -45,9 +51,10 @@ WRIST = CameraSpec("wrist_rgb", "gripper", (0.0, 0.07, 0.02), (1.0, 0.0, 0.0, 0.
 """Beside the fingers, looking along the tool's approach axis."""
 SCENE = CameraSpec("scene_rgb", "", (0.35, -0.85, 0.75), (0.92, 0.39, 0.0, -0.2, 0.47, 0.86))
 """In front of the table, looking down at the arm, the peg and the fixture."""
+SIM_SPECS = {spec.name: spec for spec in (WRIST, SCENE)}
 
 
-def _render_model(specs: tuple[CameraSpec, ...]) -> mujoco.MjModel:
+def render_model(specs: tuple[CameraSpec, ...]) -> mujoco.MjModel:
     spec = mujoco.MjSpec.from_string(rm.CELL_MODEL.read_text(encoding="utf-8"),
                                      include={rm.CELL_ARM_INCLUDE: rm.ARM_MODEL.read_bytes()})
     for camera in specs:
@@ -71,11 +78,10 @@ class RenderedCameras:
         self.period_s = 1.0 / rate_hz
         self.calibration_epoch = calibration_epoch
         self._qpos, self._clock = qpos, clock
-        self._model = _render_model(specs)
-        self._data = mujoco.MjData(self._model)
         self._frames: dict[str, CameraFrame] = {}
         self._lock = threading.Lock()
         self._stop = threading.Event()
+        self._wake = threading.Event()
         self._thread: threading.Thread | None = None
         self.failure: str | None = None
         """Why the renderer thread ended early (a GL context that would not open)."""
@@ -89,11 +95,16 @@ class RenderedCameras:
         thread, self._thread = self._thread, None
         if thread is not None:
             self._stop.set()
+            self._wake.set()
             thread.join(timeout=5.0)
 
     def latest(self, name: str) -> CameraFrame | None:
         with self._lock:
             return self._frames.get(name)
+
+    def trigger(self) -> None:
+        """Render now, not at the next period: an observation is about to be taken."""
+        self._wake.set()
 
     def camera(self, name: str) -> RenderedCamera:
         if name not in {spec.name for spec in self.specs}:
@@ -102,31 +113,80 @@ class RenderedCameras:
 
     def _run(self) -> None:
         try:
-            renderers = {s.name: mujoco.Renderer(self._model, s.height, s.width)
-                         for s in self.specs}
-        except Exception as error:  # no GL context here: say so, give no frames
-            self.failure = (f"offscreen rendering failed (MUJOCO_GL={os.environ.get('MUJOCO_GL')}"
-                            f", egl needs setting before MuJoCo is imported): {error}")
+            worker = RenderWorker(self.specs)
+        except RenderFailed as error:  # no GL context there: say so, give no frames
+            self.failure = str(error)
             return
         try:
             while not self._stop.is_set():
                 started = time.monotonic()
-                self._render_all(renderers)
-                self._stop.wait(max(0.0, self.period_s - (time.monotonic() - started)))
+                self._wake.clear()  # a trigger from here on renders again after this one
+                self._render_all(worker)
+                self._wake.wait(max(0.0, self.period_s - (time.monotonic() - started)))
+        except RenderFailed as error:
+            self.failure = str(error)
         finally:
-            for renderer in renderers.values():
-                renderer.close()
+            worker.close()
 
-    def _render_all(self, renderers: dict[str, mujoco.Renderer]) -> None:
+    def _render_all(self, worker: RenderWorker) -> None:
         t_capture = self._clock()
-        self._data.qpos[:] = self._qpos()
-        mujoco.mj_kinematics(self._model, self._data)
-        mujoco.mj_camlight(self._model, self._data)
-        for name, renderer in renderers.items():
-            renderer.update_scene(self._data, camera=name)
-            frame = make_frame(name, renderer.render(), t_capture, self.calibration_epoch)
+        pixels = worker.render(self._qpos())
+        for spec, image in zip(self.specs, pixels, strict=True):
+            frame = make_frame(spec.name, image, t_capture, self.calibration_epoch)
             with self._lock:
-                self._frames[name] = frame
+                self._frames[spec.name] = frame
+
+
+class RenderFailed(Exception):
+    """The render process did not start, or ended; the message says what it last said."""
+
+
+class RenderWorker:
+    """The child that draws (:mod:`stubs.plant.render_worker`) and its fixed-size exchange."""
+
+    def __init__(self, specs: tuple[CameraSpec, ...]) -> None:
+        self.specs = specs
+        command = [sys.executable, "-m", "stubs.child", "stubs.plant.render_worker",
+                   *(f"{s.name}:{s.width}x{s.height}" for s in specs)]
+        with children_at_ordinary_priority():  # never at the control loop's SCHED_FIFO
+            self._proc = subprocess.Popen(
+                command, stdin=subprocess.PIPE, stdout=subprocess.PIPE, start_new_session=True,
+                env={**os.environ, "MUJOCO_GL": "egl", PARENT_PID: str(os.getpid())})
+        self.nq: int = struct.unpack("<I", self._read(4))[0]
+
+    def render(self, qpos: np.ndarray) -> list[np.ndarray]:
+        """Every camera's RGB image of the cell posed at ``qpos``."""
+        stdin = self._proc.stdin
+        if stdin is None or qpos.shape != (self.nq,):
+            raise RenderFailed(f"the renderer takes {self.nq} joint positions, got "
+                               f"{qpos.shape}")
+        try:
+            stdin.write(np.ascontiguousarray(qpos, dtype="<f8").tobytes())
+            stdin.flush()
+        except (BrokenPipeError, ValueError) as error:
+            raise RenderFailed(f"the render process is gone ({error})") from None
+        return [np.frombuffer(self._read(s.height * s.width * 3), dtype=np.uint8).reshape(
+            s.height, s.width, 3) for s in self.specs]
+
+    def close(self) -> None:
+        if self._proc.stdin is not None:
+            with contextlib.suppress(OSError):
+                self._proc.stdin.close()
+        try:
+            self._proc.wait(timeout=2.0)
+        except subprocess.TimeoutExpired:
+            self._proc.kill()
+            self._proc.wait()
+        if self._proc.stdout is not None:
+            self._proc.stdout.close()
+
+    def _read(self, size: int) -> bytes:
+        stdout = self._proc.stdout
+        data = stdout.read(size) if stdout is not None else b""
+        if len(data) != size:
+            raise RenderFailed(f"the render process ended (exit code {self._proc.poll()}; "
+                               "its own message is on stderr; offscreen rendering needs EGL)")
+        return data
 
 
 class RenderedCamera:
@@ -148,6 +208,9 @@ class RenderedCamera:
             if self._cameras.failure is not None or time.monotonic() > deadline:
                 raise CameraLost(f"{self.name}: {self._cameras.failure or 'no frame rendered'}")
             time.sleep(0.005)
+
+    def trigger(self) -> None:
+        self._cameras.trigger()
 
     def read(self) -> CameraFrame:
         frame = self._cameras.latest(self.name)

@@ -18,6 +18,7 @@ from stubs.policy_server.access import Access, read_token
 from stubs.policy_server.config import DEFAULT_GOAL, ServerConfig
 from stubs.policy_server.envelope import ReplacementPolicy
 from stubs.policy_server.faults import FaultConfig
+from stubs.policy_server.images import CameraShape
 from stubs.policy_server.policy import LatencyModel
 from stubs.policy_server.server import PolicyServer
 
@@ -63,6 +64,8 @@ def parse_args(argv: list[str] | None = None) -> ServerConfig:
                    default=d.replacement_policy.value)
     p.add_argument("--rtc", action="store_true",
                    help="offer real-time chunking: honour the committed prefix observations carry")
+    p.add_argument("--camera", action="append", default=[], metavar="NAME:WxH",
+                   help="a camera every observation carries a frame of (protocol 3)")
     p.add_argument("--clock-offset-ms", type=float, default=0.0)
     p.add_argument("--seed", type=int, default=d.seed)
     p.add_argument("--heartbeat-interval", type=float, default=d.heartbeat_interval_s)
@@ -85,7 +88,7 @@ def parse_args(argv: list[str] | None = None) -> ServerConfig:
             max_acceleration=a.max_acceleration,
             noise_std=a.noise, latency=LatencyModel(a.latency_median_ms, a.latency_p95_ms),
             lead_ms=a.lead_ms, replacement_policy=ReplacementPolicy(a.replacement_policy),
-            rtc=a.rtc,
+            rtc=a.rtc, cameras=tuple(CameraShape.parse(text) for text in a.camera),
             clock_offset_ns=round(a.clock_offset_ms * 1e6), seed=a.seed,
             heartbeat_interval_s=a.heartbeat_interval, heartbeat_timeout_s=a.heartbeat_timeout,
             faults=FaultConfig.parse(a.fault),

@@ -15,8 +15,9 @@ from stubs.policy_server.access import Access
 from stubs.policy_server.envelope import ChunkSource, ReplacementPolicy
 from stubs.policy_server.faults import FaultConfig
 from stubs.policy_server.handshake import HandshakeOffer
+from stubs.policy_server.images import CameraShape
 from stubs.policy_server.policy import InsertionPolicy, LatencyModel
-from stubs.policy_server.protocol import PROTOCOL_RANGE
+from stubs.policy_server.protocol import MAX_FRAME_BYTES, PROTOCOL_RANGE
 
 DEFAULT_START = (0.0, -1.2, 1.5, -1.87, -1.57, 0.0)
 DEFAULT_GOAL = (0.1, -1.35, 1.7, -1.92, -1.57, 0.05)
@@ -59,6 +60,8 @@ class ServerConfig:
     """Offer real-time chunking: a chunk answering an observation that carries the committed
     prefix starts where the prefix does, repeats its first ``delay`` actions and plans on from
     the last of them."""
+    cameras: tuple[CameraShape, ...] = ()
+    """The cameras every observation must carry a frame of (protocol 3)."""
     max_observation_age_ms: float = 80.0
     max_action_age_ms: float = 200.0
     seed: int = 0
@@ -100,6 +103,13 @@ class ServerConfig:
             max_acceleration=self.max_acceleration,
             noise_std=self.noise_std, horizon=self.horizon, action_dt_s=self.action_dt_ms / 1e3,
         )
+
+    @property
+    def max_frame_bytes(self) -> int:
+        """The largest frame taken: a chunk-sized frame, plus the cameras' raw pixels and
+        their fields (the transport refuses more: close 1009)."""
+        pixels = sum(camera.raw_bytes for camera in self.cameras)
+        return MAX_FRAME_BYTES + (pixels + (1 << 16) if self.cameras else 0)
 
     @property
     def lead_ns(self) -> int:

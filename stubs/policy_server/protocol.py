@@ -19,8 +19,10 @@ import numpy as np
 
 from stubs.policy_server.handshake import ClientHello, HandshakeDecision, HandshakeOffer
 
-PROTOCOL_RANGE: tuple[int, int] = (1, 2)
-"""The wire versions this server speaks; version 2 adds ``clock_report``."""
+PROTOCOL_RANGE: tuple[int, int] = (1, 3)
+"""The wire versions this server speaks; version 2 adds ``clock_report``, version 3 camera
+frames in observations."""
+IMAGE_VERSION = 3
 MAX_FRAME_BYTES = 1 << 20
 """The transport refuses larger frames (websocket close 1009), on both sides."""
 SERVER_CLOCK_DOMAIN = "server"
@@ -142,6 +144,23 @@ class Prefix(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=Tr
     horizon: PrefixLength
 
 
+Side = Annotated[int, msgspec.Meta(ge=1, le=4096)]
+Label = Annotated[str, msgspec.Meta(min_length=1, max_length=64)]
+
+
+class Image(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    """A camera frame (version 3): ``raw`` RGB bytes, row-major, or a ``jpeg`` file."""
+
+    camera: Label
+    encoding: Annotated[str, msgspec.Meta(pattern="^(raw|jpeg)$")]
+    height: Side
+    width: Side
+    data: bytes
+    t_capture: Time
+    digest: Label
+    calibration_epoch: Label
+
+
 class Observation(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     """Only what a robot measures: an unknown field (a goal, a target) is a violation."""
 
@@ -154,6 +173,9 @@ class Observation(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     wrench: ArrayPayload | None = None
     gripper: float | None = None
     rtc: Prefix | None = None
+    images: Annotated[tuple[Image, ...], msgspec.Meta(max_length=8)] = ()
+    t_state: Time | None = None
+    """Version 3, with frames: when the joints were read (``t_event`` is the oldest frame's)."""
 
 
 class Heartbeat(msgspec.Struct, frozen=True, kw_only=True):

@@ -43,8 +43,8 @@ from stubs.policy_server.faults import (
     unknown_type_frame,
 )
 from stubs.policy_server.handshake import HandshakeOffer, HandshakeVerdict, fingerprint
+from stubs.policy_server.images import ImageProblem, check_images
 from stubs.policy_server.protocol import (
-    MAX_FRAME_BYTES,
     Bye,
     ByeReason,
     ClockPing,
@@ -81,6 +81,10 @@ class ServerStats:
     chunks_dropped: int = 0
     chunks_resent: int = 0
     violations: int = 0
+    frames_seen: int = 0
+    """Camera frames received and checked (protocol 3)."""
+    frame_digests: list[str] = field(default_factory=list)
+    """The last observation's frames' digests, in the order of the server's cameras."""
     byes_received: list[str] = field(default_factory=list)
     byes_sent: list[str] = field(default_factory=list)
 
@@ -123,7 +127,7 @@ class PolicyServer:
     async def __aenter__(self) -> PolicyServer:
         access = self.config.access
         self._server = await ws_serve(
-            self._handle, self.config.host, self.config.port, max_size=MAX_FRAME_BYTES,
+            self._handle, self.config.host, self.config.port, max_size=self.config.max_frame_bytes,
             compression=None, ping_interval=None, close_timeout=1.0, ssl=access.tls(),
             subprotocols=[SUBPROTOCOL], process_request=access.check,  # type: ignore[list-item]
         )
@@ -291,6 +295,12 @@ class _Connection:
         if not self.accepted or self.tasks is None:
             raise ProtocolViolation("an observation before an accepted handshake")
         q = payload_vector(observation.q, len(self.config.goal))
+        try:
+            pixels = check_images(observation, self.config.cameras, self.version or 1)
+        except ImageProblem as problem:
+            raise ProtocolViolation(str(problem)) from None
+        self.stats.frames_seen += len(pixels)
+        self.stats.frame_digests = [image.digest for image in observation.images]
         # Real-time chunking: joint actions only (a Cartesian session's are not the rows).
         prefix = None if self.server.output is not None else read_prefix(
             self.config, observation.rtc, self.client_offset)
@@ -315,12 +325,15 @@ class _Connection:
         # translates it; without one, the arrival time is the best this side knows.
         t_obs = t_arrival if self.client_offset is None else (
             observation.t_event - self.client_offset)
+        # The joints were read after the frames were taken: the plan starts from then.
+        t_state = t_obs if observation.t_state is None or self.client_offset is None else (
+            observation.t_state - self.client_offset)
         qd = payload_vector(observation.qd, len(cfg.goal)) if observation.qd else None
         conditioned = None if prefix is None else conditioned_actions(
             cfg, self.server.policy, self.server.rng, prefix, qd)
         if conditioned is None:
             actions = self.server.policy.actions(q, cfg.lead_ns / 1e9, self.server.rng, qd)
-            first, delay = t_obs + cfg.lead_ns, None
+            first, delay = t_state + cfg.lead_ns, None
         else:
             actions, delay, first = conditioned
         if self.server.output is not None:

@@ -16,7 +16,10 @@ from kernel.app.check_cameras import camera_rows
 from kernel.manifest import ManifestError, load_manifest
 from tests.cell.harness import MANIFESTS
 
-SIM = (MANIFESTS / "sim-ur5e.toml").read_text()
+SIM = (MANIFESTS / "sim-ur5e.toml").read_text().replace(
+    "protocol = [1, 2]", "protocol = [3, 3]").replace(
+    '"joint_pos", "wrench"]', '"side_rgb", "joint_pos", "wrench"]')
+"""The simulated cell on protocol 3 (frames travel), with a third camera's key."""
 
 
 def _with_cameras(tmp_path: Path, cameras: str, base: str = SIM) -> Path:
@@ -45,6 +48,12 @@ def _video(path: Path, frames: int, width: int = 64, height: int = 48,
     ('[[cameras]]\nname = "wrist_rgb"\nsource = "sim"\nexposure = 3\n',
      "cameras[0].exposure: unknown key"),
     ('[[cameras]]\nname = "wrist_rgb"\nsource = "usb"\n', "cameras[0].source"),
+    ('[[cameras]]\nname = "thermal_ir"\nsource = "opencv"\ndevice = "0"\n',
+     "cameras[0].name: 'thermal_ir' is not one of session.observation_keys"),
+    ('[[cameras]]\nname = "wrist_rgb"\nsource = "sim"\nfreeze_frames = 5\n',
+     "cameras[0].freeze_frames: a rendered scene that stands still"),
+    ('[[cameras]]\nname = "wrist_rgb"\nsource = "sim"\non_loss = "continue"\n',
+     "cameras[0].grace_ms: on_loss = \"continue\" needs a positive grace_ms"),
 ])
 def test_a_camera_the_cell_cannot_have_is_refused_at_load(tmp_path: Path, cameras: str,
                                                          says: str) -> None:
@@ -57,6 +66,31 @@ def test_cameras_that_are_not_tables_are_refused(tmp_path: Path) -> None:
     path.write_text("cameras = 3\n" + SIM)
     with pytest.raises(ManifestError, match=re.escape("cameras: must be an array of tables")):
         load_manifest(path)
+
+
+def test_frames_need_protocol_3_a_wall_clock_and_an_openpi_key(tmp_path: Path) -> None:
+    camera = '[[cameras]]\nname = "wrist_rgb"\nsource = "sim"\n'
+    old = SIM.replace("protocol = [3, 3]", "protocol = [1, 3]")
+    with pytest.raises(ManifestError, match=re.escape(
+            "session.protocol: frames travel from protocol 3 on")):
+        load_manifest(_with_cameras(tmp_path, camera, old))
+    virtual = SIM.replace('clock = "wall"', 'clock = "virtual"')
+    with pytest.raises(ManifestError, match=re.escape("cell.clock: a virtual-clock run has no "
+                                                      "cameras")):
+        load_manifest(_with_cameras(tmp_path, camera, virtual))
+    openpi = (MANIFESTS / "sim-openpi.toml").read_text()
+    unmapped = openpi.replace('wrist_rgb = "observation/wrist_image"\n', "")
+    with pytest.raises(ManifestError, match=re.escape(
+            "policy.openpi.images: camera 'wrist_rgb' has no openpi key")):
+        load_manifest(_with_cameras(tmp_path, "", unmapped))
+    jpeg = openpi.replace('name = "scene_rgb"\n', 'name = "scene_rgb"\nencoding = "jpeg"\n')
+    with pytest.raises(ManifestError, match=re.escape("cameras[1].encoding: openpi takes")):
+        load_manifest(_with_cameras(tmp_path, "", jpeg))
+    stray = openpi.replace('scene_rgb = "observation/image"\n',
+                           'scene_rgb = "observation/image"\nside = "observation/side"\n')
+    with pytest.raises(ManifestError, match=re.escape("policy.openpi.images.side: no "
+                                                      "[[cameras]] entry")):
+        load_manifest(_with_cameras(tmp_path, "", stray))
 
 
 def test_a_simulated_camera_needs_warden_to_run_the_plant(tmp_path: Path) -> None:
@@ -85,7 +119,7 @@ width = 64
 height = 48
 
 [[cameras]]
-name = "side"
+name = "side_rgb"
 source = "opencv"
 device = "{tmp_path / 'unplugged.avi'}"
 ''')
@@ -94,8 +128,8 @@ device = "{tmp_path / 'unplugged.avi'}"
     assert rows["camera wrist_rgb"].measured.startswith("12 frames")
     assert rows["camera scene_rgb"].verdict == "NOT READY"
     assert "frozen" in rows["camera scene_rgb"].reason
-    assert rows["camera side"].verdict == "NOT READY"
-    assert "does not open" in rows["camera side"].reason
+    assert rows["camera side_rgb"].verdict == "NOT READY"
+    assert "does not open" in rows["camera side_rgb"].reason
 
 
 def test_a_simulated_camera_is_not_exercised_by_check(tmp_path: Path) -> None:

@@ -62,7 +62,7 @@ EXPECTED: dict[R, Expected] = {
     R.CONTACT_ANOMALY: Expected(Mode.CONTACT_FALLBACK, SOFT | {Mode.SAFE_HOLD}),
     **{code: Expected(Mode.SAFE_HOLD, SOFT)
        for code in (R.STATE_DIVERGED, R.STATE_IMPLAUSIBLE, R.OOD, R.HOLD_REQUESTED,
-                    R.UNDERRUN, R.COLLISION)},
+                    R.UNDERRUN, R.COLLISION, R.CAMERA_LOST)},
     R.INFEASIBLE: Expected(Mode.REPLAN_OR_RETREAT, RUNNING),
     **{code: Expected(Mode.DEGRADED, RUNNING) for code in AT_ONCE_TO_DEGRADED},
     **{code: Expected(Mode.DEGRADED, RUNNING, DEGRADE_AFTER) for code in TIMING},

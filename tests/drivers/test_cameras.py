@@ -17,7 +17,7 @@ import pytest
 
 from drivers.camera import CameraLost, FreezeWatch, make_frame
 from drivers.opencv_camera import OpenCvCamera
-from stubs.plant.cameras import SCENE, WRIST, RenderedCameras, _render_model
+from stubs.plant.cameras import SCENE, WRIST, RenderedCameras, render_model
 
 WIDTH, HEIGHT = 64, 48
 COLOURS_BGR = [(255, 0, 0), (0, 255, 0), (0, 0, 255), (255, 255, 0), (0, 255, 255)]
@@ -88,7 +88,7 @@ def test_a_frozen_camera_is_told_by_repeated_frames() -> None:
 
 def test_the_cells_cameras_render_on_their_own_thread_and_see_the_arm_move() -> None:
     small = tuple(dataclasses.replace(spec, width=64, height=64) for spec in (WRIST, SCENE))
-    model = _render_model(small)
+    model = render_model(small)
     qpos = model.qpos0.copy()
     clock = _Ticks()
     cameras = RenderedCameras(small, rate_hz=200.0, qpos=lambda: qpos.copy(),

@@ -32,19 +32,23 @@ from kernel.scenario.fields import Where
 from kernel.shell.client import RobotClient
 from kernel.shell.link_budget import AdmissionPacer
 from kernel.shell.link_settings import PolicySettings
-from kernel.shell.link_types import ClientConfig, RobotSample
+from kernel.shell.link_types import CameraFrames, ClientConfig, RobotSample
 from kernel.summary import ADMITTED
 from stubs.policy_server import LatencyModel, PolicyServer, ServerConfig
-from tools.scenarios.base import ScenarioSpec
+from tools.scenarios.base import ScenarioSpec, session
 
 TIMING = {"low_watermark_ms": 150, "high_watermark_ms": 400, "request_retry_ms": 40}
 CLOCK_OFFSET_NS = 1_234_567_891  # the server's clock runs this far ahead of ours
 
 
 class LoopbackGateway:
-    def __init__(self, phase: str = "FREE_SPACE", timing: dict[str, Any] | None = None) -> None:
+    def __init__(self, phase: str = "FREE_SPACE", timing: dict[str, Any] | None = None,
+                 protocol: tuple[int, int] = (1, 2),
+                 cameras: list[dict[str, Any]] | None = None) -> None:
         spec = ScenarioSpec(name="wire", description="", events=[], until=0, expect=[],
-                            phase=phase, timing={**TIMING, **(timing or {})})
+                            phase=phase, timing={**TIMING, **(timing or {})},
+                            session={**session(phase), "protocol": list(protocol)},
+                            cameras=cameras)
         config = build_config(spec.document(), Where("wire", ""))
         self.config = dataclasses.replace(config, initial_session=None)
         self.core = Core(self.config)
@@ -153,7 +157,8 @@ def client_config(port: int, **changes: Any) -> ClientConfig:
 @contextlib.asynccontextmanager
 async def running(
     server: ServerConfig | None = None, gateway: LoopbackGateway | None = None,
-    port: int | None = None, pacer: AdmissionPacer | None = None, **client_changes: Any,
+    port: int | None = None, pacer: AdmissionPacer | None = None,
+    cameras: CameraFrames | None = None, **client_changes: Any,
 ) -> AsyncIterator[Link]:
     """A server (in-process unless ``port`` names one elsewhere), a client and a tick loop
     (which hands out admission slots when a ``pacer`` is given, as the live loop does)."""
@@ -163,7 +168,7 @@ async def running(
         if "url" in client_changes:  # a URL of another scheme: "{port}" is filled in
             client_changes["url"] = client_changes["url"].format(port=port or policy.port)
         client = RobotClient(client_config(port or policy.port, **client_changes), gateway,
-                             pacer=pacer)
+                             pacer=pacer, cameras=cameras)
         gateway.client = client
         stop = asyncio.Event()
         async with asyncio.TaskGroup() as tasks:

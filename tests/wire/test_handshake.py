@@ -90,7 +90,7 @@ async def test_no_common_session_protocol_is_a_rejection() -> None:
 
 
 async def test_no_common_wire_protocol_ends_before_any_offer() -> None:
-    async with running(server_config(wire_protocol=(3, 3))) as link:
+    async with running(server_config(wire_protocol=(4, 4))) as link:
         await wait_for(lambda: link.client.counters.byes_received >= 2, "two refusals")
         sent = link.server.stats.byes_sent
     assert link.gateway.handshakes() == []

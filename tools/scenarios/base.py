@@ -145,6 +145,8 @@ class ScenarioSpec:
     robot: dict[str, Any] | None = None
     geometry: dict[str, Any] | None = None
     """The cell's ``geometry`` section, for the scenarios that check clearances."""
+    cameras: list[dict[str, Any]] | None = None
+    """The ``cameras`` section, for the scenarios that lose one."""
 
     def document(self) -> dict[str, Any]:
         timing = {"control_period_ms": 2, "clock_uncertainty_ms": 1, **self.timing}
@@ -161,6 +163,7 @@ class ScenarioSpec:
                            "config_hash": IDENTITY["config_hash"]},
                           {"policy_checkpoint": "act-insert-2026-06", "config_hash": "cfg-77a1"}],
             **({"geometry": self.geometry} if self.geometry is not None else {}),
+            **({"cameras": self.cameras} if self.cameras is not None else {}),
             "events": sorted(copy.deepcopy(self.events), key=lambda e: e["t"]),
             "until": self.until,
             "expect": self.expect,

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from tools.scenarios import (
     catalog_authority,
+    catalog_cameras,
     catalog_cartesian,
     catalog_collision,
     catalog_context,
@@ -20,7 +21,7 @@ from tools.scenarios.base import dumps
 MODULES = (
     catalog_seed, catalog_identity, catalog_context, catalog_time, catalog_queue,
     catalog_authority, catalog_network, catalog_recovery, catalog_cartesian, catalog_collision,
-    catalog_rtc,
+    catalog_rtc, catalog_cameras,
 )
 
 
