@@ -3,8 +3,8 @@ read for a moment, on a thread of its own (an OpenCV read blocks until a frame i
 
 An OpenCV camera is READY when it opens at the manifest's size and gives frames; the row says
 how many in how long, and whether they changed (a device that repeats one frame is frozen). A
-simulated camera renders the run's plant, which check does not run: NOT EXERCISED. Frames do
-not reach observations yet (docs/architecture.md, "Cameras").
+simulated camera renders the run's plant, which check does not run: NOT EXERCISED. How a run
+carries frames: docs/architecture.md, "Cameras".
 """
 
 from __future__ import annotations
