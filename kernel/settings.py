@@ -58,9 +58,19 @@ class OperatorSettings(msgspec.Struct, frozen=True, kw_only=True):
     """Who may command: members of this group (and root); empty: warden's own group."""
 
 
+class FrameRecord(StrEnum):
+    """What the run's record keeps of each camera frame an observation carried."""
+
+    DIGESTS = "digests"
+    """Its digest, capture time and calibration epoch, in the journal."""
+    PIXELS = "pixels"
+    """That, and the picture, as a PNG beside the journal (kernel/shell/frame_store.py)."""
+
+
 class JournalSettings(msgspec.Struct, frozen=True, kw_only=True):
     enabled: bool = True
     directory: str = "runs"
+    frames: FrameRecord = FrameRecord.DIGESTS
 
 
 class WorkspaceSection(msgspec.Struct, frozen=True, kw_only=True):

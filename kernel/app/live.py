@@ -19,7 +19,7 @@ from typing import Any
 import structlog
 
 from kernel.app import standins
-from kernel.app.cameras import camera_hub
+from kernel.app.cameras import camera_hub, frame_store
 from kernel.app.compose import source_of
 from kernel.app.interrupt import StopSignals
 from kernel.app.operator import operator_server
@@ -37,6 +37,7 @@ from kernel.core.events import LinkEvent, LinkStatus
 from kernel.manifest import Manifest
 from kernel.shell.cameras import CameraHub
 from kernel.shell.client import RobotClient
+from kernel.shell.frame_store import FrameStore
 from kernel.shell.heartbeat import HeartbeatSender
 from kernel.shell.link_budget import AdmissionPacer
 from kernel.shell.link_types import ClientConfig
@@ -90,6 +91,7 @@ async def _run_live(manifest: Manifest, journal_dir: Path | None,
     context.heartbeat = loop.heartbeat.stats if loop.heartbeat.enabled else None
     client: RobotClient | None = None
     cameras: CameraHub | None = None
+    frames: FrameStore | None = None
     try:
         # A stop requested during start-up (device bring-up, policy server start) is kept and
         # honoured before the first tick, through the same orderly shutdown.
@@ -102,7 +104,9 @@ async def _run_live(manifest: Manifest, journal_dir: Path | None,
                 context.cell.context))
             url = server.start()
         if not stop.requested:
-            cameras = camera_hub(manifest, context.cell.world, context.cell.gateway.now_ns)
+            frames = frame_store(manifest, context.files.directory)
+            cameras = camera_hub(manifest, context.cell.world, context.cell.gateway.now_ns,
+                                 frames.keep if frames is not None else None)
         if cameras is not None:  # every camera sees before anything moves
             cameras.start()
             await asyncio.to_thread(cameras.wait_first_frames)
@@ -115,6 +119,8 @@ async def _run_live(manifest: Manifest, journal_dir: Path | None,
     finally:
         if cameras is not None:
             await asyncio.to_thread(cameras.stop)
+        if frames is not None:
+            await asyncio.to_thread(frames.close)
         context.cell.controller.cut_short(cut_short_reason(
             context, stop, failures, ended_by_hook=loop.ended_by_hook))
         service.stopping("holding the arm and closing the device")
@@ -137,6 +143,7 @@ async def _run_live(manifest: Manifest, journal_dir: Path | None,
         "link": {k: v for k, v in client.counters.snapshot().items() if v} if client else {},
         "jobs": {"done": worker.done, "failed": worker.failed},
         "operator": _operator_summary(operator), "safety": loop.heartbeat.summary(),
+        **({"frames": frames.stats.as_dict()} if frames is not None else {}),
         "service": {"notify": service.enabled, "sent": service.stats.sent,
                     "failed": service.stats.failed},
     })

@@ -159,8 +159,11 @@ class CameraHub:
     """The manifest's cameras for one run (module docstring)."""
 
     def __init__(self, cameras: tuple[CameraSettings, ...],
-                 sources: Mapping[str, CameraSource]) -> None:
+                 sources: Mapping[str, CameraSource],
+                 keep: Callable[[CameraFrame], None] | None = None) -> None:
         self.cameras = cameras
+        self._keep = keep
+        """Given every frame an observation carries (its pictures kept beside the journal)."""
         self._readers = {c.name: CameraReader(sources[c.name], c.rate_hz) for c in cameras}
         self._health = {c.name: CameraHealth(c) for c in cameras}
         self._encoded: dict[str, SeenImage] = {}
@@ -203,6 +206,9 @@ class CameraHub:
             except CameraLost:
                 self.withheld += 1
                 return None
+        if self._keep is not None:
+            for image in images:
+                self._keep(image.frame)
         return tuple(images)
 
     async def fresh(self, since_ns: int, now_ns: Callable[[], int],

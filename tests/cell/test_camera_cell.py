@@ -15,6 +15,7 @@ import cv2
 import numpy as np
 import pytest
 
+from drivers.camera import frame_digest
 from kernel.cli import main
 from tests.cell.harness import MANIFESTS, replays_identically, run_dir
 
@@ -22,13 +23,14 @@ pytestmark = pytest.mark.slow
 
 
 def _with_cameras(directory: Path, cameras: str, cycles: int = 1,
-                  timeout_s: float = 30.0) -> Path:
+                  timeout_s: float = 30.0, frames: str = "digests") -> Path:
     """sim-ur5e with ``cameras`` ([[cameras]] tables) and warden's protocol 3; nothing else
     changed (a rendered frame leaves about 8 ms old: bench/camera_latency.py)."""
     text = (MANIFESTS / "sim-ur5e.toml").read_text()
     for pattern, new in ((r"(?m)^protocol = \[1, 2\]", "protocol = [3, 3]"),
                          (r"(?m)^cycles = \d+", f"cycles = {cycles}"),
-                         (r"(?m)^cycle_timeout_s = [0-9.]+", f"cycle_timeout_s = {timeout_s}")):
+                         (r"(?m)^cycle_timeout_s = [0-9.]+", f"cycle_timeout_s = {timeout_s}"),
+                         (r"(?m)^\[journal\]\n", f'[journal]\nframes = "{frames}"\n')):
         text, count = re.subn(pattern, new, text, count=1)
         assert count == 1, pattern
     path = directory / "cameras.toml"
@@ -64,7 +66,8 @@ grace_ms = 500.0
 
 def test_the_cell_verifies_its_cycle_seeing_through_both_rendered_cameras(
         tmp_path: Path) -> None:
-    code, summary, directory = _run(_with_cameras(tmp_path, RENDERED), tmp_path / "runs")
+    code, summary, directory = _run(_with_cameras(tmp_path, RENDERED, frames="pixels"),
+                                    tmp_path / "runs")
     link = summary["link"]
     assert code == 0, summary["cycles"]
     assert "protocol_violations" not in link and link["connects"] == 1, link
@@ -74,6 +77,14 @@ def test_the_cell_verifies_its_cycle_seeing_through_both_rendered_cameras(
     observations = [e for e in journal[1:] if e.get("kind") == "observation"]
     assert observations and all(len(o["frames"]) == 2 for o in observations)
     assert len({f["digest"] for o in observations for f in o["frames"]}) > 4  # it moved
+    # frames = "pixels": each picture sent is kept once, as a PNG named by its digest.
+    kept = summary["frames"]
+    assert kept["error"] is None and kept["written"] + kept["dropped"] == len(
+        {(f["camera"], f["digest"]) for o in observations for f in o["frames"]}), kept
+    for frame in observations[-1]["frames"]:
+        png = directory / "frames" / frame["camera"] / f"{frame['digest']}.png"
+        rgb = cv2.cvtColor(cv2.imread(str(png)), cv2.COLOR_BGR2RGB)
+        assert frame_digest(rgb) == frame["digest"]  # the picture the journal names
     assert not [line for line in _lines(directory, "decisions.jsonl")
                 if line["kind"] == "camera"]  # never lost
     assert replays_identically(directory)
