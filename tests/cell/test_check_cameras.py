@@ -136,3 +136,12 @@ def test_a_simulated_camera_is_not_exercised_by_check(tmp_path: Path) -> None:
     path = _with_cameras(tmp_path, '[[cameras]]\nname = "wrist_rgb"\nsource = "sim"\n')
     [row] = asyncio.run(camera_rows(load_manifest(path)))
     assert row.verdict == "NOT EXERCISED" and "plant" in row.reason
+
+
+def test_a_virtual_clock_asked_for_on_the_command_line_is_refused_with_cameras(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from kernel.cli import main
+
+    path = _with_cameras(tmp_path, '[[cameras]]\nname = "wrist_rgb"\nsource = "sim"\n')
+    assert main(["run", str(path), "--clock", "virtual", "--no-journal"]) == 2
+    assert "--clock virtual: " in capsys.readouterr().err
