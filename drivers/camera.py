@@ -6,7 +6,8 @@ journal can keep instead of the pixels) and which calibration it was taken under
 :class:`CameraSource` is opened, read one frame at a time and closed; a source that can give no
 frame raises :class:`CameraLost` naming itself. Two sources exist: OpenCV for V4L2/USB
 cameras and video files (:mod:`drivers.opencv_camera`) and the simulated cell's MuJoCo
-cameras, rendered in the plant's process (:mod:`stubs.plant.cameras`).
+cameras, drawn from its plant's joints by a render process of their own
+(:mod:`stubs.plant.cameras`).
 
 A camera that keeps sending the same picture is as bad as a lost one, and harder to see:
 :class:`FreezeWatch` tells one from a scene that merely stands still only for a real sensor

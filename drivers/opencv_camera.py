@@ -2,9 +2,11 @@
 or a recorded video file read through the same calls (how the tests exercise it).
 
 OpenCV's ``read`` blocks until a frame is there (a device at 30 Hz: up to 33 ms): call it from
-a thread of its own, never from the control loop's. Frames come in BGR; they leave as RGB. The
-capture time is taken on the robot's clock as the frame is handed over (``CAP_PROP_POS_MSEC``
-is the stream's own time, not the robot's).
+a thread of its own, never from the control loop's, and as fast as it returns (a device is
+asked for a single buffer, so what it returns is its latest frame). Frames come in BGR; they
+leave as RGB. The capture time is taken on the robot's clock as the frame is handed over, so a
+frame is at least as old as it is said to be plus the device's own exposure and transfer
+(``CAP_PROP_POS_MSEC`` is the stream's own time, not the robot's: not used).
 """
 
 from __future__ import annotations
@@ -39,9 +41,12 @@ class OpenCvCamera:
         if not capture.isOpened():
             capture.release()
             raise CameraLost(f"{self.name}: {self.device!r} does not open")
-        if isinstance(self.device, int):  # a device can be asked; a file is what it is
+        if self.live:  # a device can be asked; a file is what it is
             capture.set(cv2.CAP_PROP_FRAME_WIDTH, self.size[1])
             capture.set(cv2.CAP_PROP_FRAME_HEIGHT, self.size[0])
+            # One buffer: a read gets the frame the device took last, not the oldest of the
+            # four V4L2 queues by default (300-400 ms old at 30 fps, stamped as new).
+            capture.set(cv2.CAP_PROP_BUFFERSIZE, 1)
         shape = (int(capture.get(cv2.CAP_PROP_FRAME_HEIGHT)),
                  int(capture.get(cv2.CAP_PROP_FRAME_WIDTH)))
         if shape != self.size:
@@ -49,6 +54,11 @@ class OpenCvCamera:
             raise CameraLost(f"{self.name}: {self.device!r} gives {shape[1]}x{shape[0]} frames, "
                              f"the manifest says {self.size[1]}x{self.size[0]}")
         self._capture = capture
+
+    @property
+    def live(self) -> bool:
+        """A device (an index or a /dev path), not a recorded file."""
+        return isinstance(self.device, int) or self.device.startswith("/dev/")
 
     def read(self) -> CameraFrame:
         """Raises:

@@ -25,6 +25,7 @@ from kernel.wire import ImageEncoding
 SIM_CAMERAS = ("wrist_rgb", "scene_rgb")
 """The simulated cell's cameras (stubs/plant/cameras.py)."""
 Pixels = Annotated[int, Meta(ge=16, le=4096)]
+MAX_FRAME_AGE_MS = 10_000.0
 
 
 class CameraKind(StrEnum):
@@ -53,8 +54,9 @@ class CameraSettings(msgspec.Struct, frozen=True, kw_only=True):
     """What losing this camera means: the phase stops at once (``stop``), or goes on with
     what was admitted for at most ``grace_ms`` (``continue``; kernel/core/cameras.py)."""
     grace_ms: Annotated[float, Meta(ge=0.0, le=GRACE_MAX_MS)] = 0.0
-    max_frame_age_ms: Annotated[float, Meta(ge=1.0, le=10_000.0)] | None = None
-    """A newest frame older than this is a lost camera (default: three frame periods)."""
+    max_frame_age_ms: Annotated[float, Meta(ge=1.0, le=MAX_FRAME_AGE_MS)] | None = None
+    """A newest frame older than this is a lost camera (default: three frame periods, at most
+    10 s)."""
     freeze_frames: Annotated[int, Meta(ge=0, le=600)] = 0
     """This many identical frames in a row is a frozen camera (0: not watched). Only for a
     real sensor, whose noise changes every frame; a rendered scene that stands still
@@ -62,8 +64,16 @@ class CameraSettings(msgspec.Struct, frozen=True, kw_only=True):
 
     @property
     def frame_age_limit_ms(self) -> float:
-        return self.max_frame_age_ms if self.max_frame_age_ms is not None else (
-            3000.0 / self.rate_hz)
+        return self.max_frame_age_ms if self.max_frame_age_ms is not None else min(
+            3000.0 / self.rate_hz, MAX_FRAME_AGE_MS)
+
+    @property
+    def live_device(self) -> bool:
+        """An OpenCV device (an index or a /dev path), whose read waits for its next frame;
+        not a video file, which is read at ``rate_hz``."""
+        device = self.device or ""
+        return self.source is CameraKind.OPENCV and (device.isdigit()
+                                                     or device.startswith("/dev/"))
 
     @property
     def frame_bytes(self) -> int:

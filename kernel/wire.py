@@ -214,9 +214,9 @@ class Observation(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     """Protocol 3: the cameras' frames, one per camera of the session's observation keys;
     ``t_event`` is then no later than the oldest ``t_capture``."""
     t_state: WireTime | None = None
-    """Protocol 3, with frames: when ``q``, ``qd``, ``wrench`` and ``gripper`` were read
-    (``t_event`` is the oldest frame's time, earlier); a policy extrapolates the joints from
-    here, and counts the observation's age from ``t_event``."""
+    """Protocol 3, with frames: when ``q``, ``qd``, ``wrench`` and ``gripper`` were measured
+    (the last control tick's sample); a policy extrapolates the joints from here, and counts
+    the observation's age from ``t_event``, its oldest frame's time."""
 
 
 class Heartbeat(msgspec.Struct, frozen=True, kw_only=True):

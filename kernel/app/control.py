@@ -188,7 +188,7 @@ class ControlLoop:
             self._last_seq = sample.seq
             self.gateway.feed(StateEvent(t=t, q=tuple(q.tolist()), qd=tuple(qd.tolist()),
                                          force_residual=force))
-            self.gateway.observe_robot(q, qd, wrench, sample.gripper)
+            self.gateway.observe_robot(q, qd, wrench, sample.gripper, t)
         return Sensed(t_ns=t, q=q, qd=qd, force_norm=force, fresh=fresh,
                       driver_ok=self.driver.state is DriverState.ACTIVE)
 

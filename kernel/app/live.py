@@ -117,16 +117,16 @@ async def _run_live(manifest: Manifest, journal_dir: Path | None,
                                  cameras=cameras)
             await _supervise(context, client, worker, operator, loop, failures, cameras)
     finally:
-        if cameras is not None:
-            await asyncio.to_thread(cameras.stop)
-        if frames is not None:
-            await asyncio.to_thread(frames.close)
         context.cell.controller.cut_short(cut_short_reason(
             context, stop, failures, ended_by_hook=loop.ended_by_hook))
         service.stopping("holding the arm and closing the device")
         await context.cell.driver.aclose()
         loop.heartbeat.close()  # END only now: the arm is held and the device closed
         context.cell.world.close()
+        if cameras is not None:  # after the arm is held: a read that hangs delays nothing
+            await asyncio.to_thread(_stop_cameras, cameras)
+        if frames is not None:
+            await asyncio.to_thread(frames.close)
         worker.close()
         gc.unfreeze()  # let the collector see the run's objects again before the process ends
         restore(realtime)
@@ -291,6 +291,12 @@ async def _supervise(context: RunContext, client: RobotClient, worker: JobWorker
         await done.wait()
         client.stop()
         await supervisor.shutdown()
+
+
+def _stop_cameras(cameras: CameraHub) -> None:
+    stuck = cameras.stop()
+    if stuck:
+        log.warning("camera still in a read at the run's end", cameras=stuck)
 
 
 def _heartbeat(manifest: Manifest) -> HeartbeatSender:

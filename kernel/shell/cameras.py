@@ -7,8 +7,10 @@ frame), or, for a camera that takes pictures on request (the simulated cell's re
 picks up each new picture as it comes; :meth:`CameraHub.fresh` asks those for a picture just
 before an observation is taken, so it is as fresh as the renderer allows. The hub gives the
 policy link each camera's newest frame, encoded as the manifest asks, and only when every
-camera has one fresh enough: an observation is never sent without a camera the handshake
-promised.
+camera has one fresh enough and none is reported down: an observation is never sent without a
+frame of each ``[[cameras]]`` entry. (An observation key that names a camera the manifest has
+no ``[[cameras]]`` entry for is not checked: the shipped joint-only cells still list
+``wrist_rgb`` and ``scene_rgb`` among their keys.)
 :class:`CameraHealth` judges each camera from what its reader saw (lost: no frame, or none
 newer than ``max_frame_age_ms``; frozen: ``freeze_frames`` identical frames in a row) and the
 hub's :meth:`~CameraHub.watch` task feeds each change to the core as a
@@ -19,6 +21,7 @@ hub's :meth:`~CameraHub.watch` task feeds each change to the core as a
 from __future__ import annotations
 
 import asyncio
+import functools
 import threading
 import time
 from collections.abc import Callable, Mapping
@@ -33,6 +36,7 @@ from drivers.camera import CameraFrame, CameraLost, CameraSource, FreezeWatch, T
 from kernel.core.events import CameraEvent, CameraStatus, Event
 from kernel.manifest_cameras import CameraSettings
 from kernel.shell.link_types import SeenImage
+from kernel.shell.realtime import thread_at_ordinary_priority
 from kernel.wire import ImageEncoding
 
 FIRST_FRAME_S = 10.0
@@ -45,6 +49,8 @@ POLL_S = 0.002
 FRESH_TIMEOUT_S = 0.25
 """How long a request waits for the triggered cameras' pictures before it goes on anyway (the
 frames it then takes are judged by their age like any other)."""
+STOP_S = 5.0
+"""How long a run's end waits for all the camera threads together."""
 RETRY_OPEN_S = 0.5
 """A source that would not open, or failed, is opened again after this."""
 
@@ -56,13 +62,21 @@ class CameraUnavailable(DriverInitError):
 
 
 class CameraReader:
-    """One source read on its own thread; :meth:`newest` is the last frame it gave."""
+    """One source read on its own thread, at the ordinary scheduling policy (never the control
+    loop's); each new frame is encoded there once, as it will travel (a JPEG of a large frame
+    costs milliseconds: never on the loop). :meth:`newest` is the last frame it gave."""
 
-    def __init__(self, source: CameraSource, rate_hz: float) -> None:
+    def __init__(self, source: CameraSource, rate_hz: float, paced: bool,
+                 encode: Callable[[CameraFrame], SeenImage]) -> None:
         self.source = source
         self.triggered = isinstance(source, TriggeredSource)
-        self.period_s = POLL_S if self.triggered else 1.0 / rate_hz
+        # A device's read blocks until its next frame: pacing it would let frames queue up in
+        # the driver and hand out old ones. A file is paced to the rate; a rendered camera's
+        # new pictures are picked up as they come.
+        self.period_s = POLL_S if self.triggered else (1.0 / rate_hz if paced else 0.0)
+        self._encode = encode
         self._newest: CameraFrame | None = None
+        self._seen: SeenImage | None = None
         self._failure: str | None = "not opened yet"
         self._lock = threading.Lock()
         self._stop = threading.Event()
@@ -74,18 +88,30 @@ class CameraReader:
                                             daemon=True)
             self._thread.start()
 
-    def stop(self) -> None:
+    def signal_stop(self) -> None:
+        self._stop.set()
+
+    def join(self, deadline: float) -> bool:
+        """Wait for the thread until ``deadline`` (monotonic s); False if it is still in a
+        read that does not return (an unplugged device): it is a daemon, left to the exit."""
         thread, self._thread = self._thread, None
         if thread is not None:
-            self._stop.set()
-            thread.join(timeout=5.0)
+            thread.join(timeout=max(0.0, deadline - time.monotonic()))
+            return not thread.is_alive()
+        return True
 
     def newest(self) -> tuple[CameraFrame | None, str | None]:
         """The newest frame, and why there will be no newer one for now (None: reading)."""
         with self._lock:
             return self._newest, self._failure
 
+    def newest_seen(self) -> tuple[SeenImage | None, str | None]:
+        """The newest frame as it travels, and why there will be no newer one (None: none)."""
+        with self._lock:
+            return self._seen, self._failure
+
     def _run(self) -> None:
+        thread_at_ordinary_priority()
         while not self._stop.is_set():
             try:
                 self.source.open()
@@ -101,8 +127,10 @@ class CameraReader:
         while not self._stop.is_set():
             started = time.monotonic()
             frame = self.source.read()
-            with self._lock:
-                self._newest = frame
+            if frame is not self._newest:
+                seen = self._encode(frame)
+                with self._lock:
+                    self._newest, self._seen = frame, seen
             self._stop.wait(max(0.0, self.period_s - (time.monotonic() - started)))
 
     def _set_failure(self, failure: str | None) -> None:
@@ -164,9 +192,11 @@ class CameraHub:
         self.cameras = cameras
         self._keep = keep
         """Given every frame an observation carries (its pictures kept beside the journal)."""
-        self._readers = {c.name: CameraReader(sources[c.name], c.rate_hz) for c in cameras}
+        self._readers = {c.name: CameraReader(sources[c.name], c.rate_hz,
+                                              paced=not c.live_device,
+                                              encode=functools.partial(encode, c))
+                         for c in cameras}
         self._health = {c.name: CameraHealth(c) for c in cameras}
-        self._encoded: dict[str, SeenImage] = {}
         self.withheld = 0
         """Observations not sent because a camera had no fresh frame."""
 
@@ -174,9 +204,13 @@ class CameraHub:
         for reader in self._readers.values():
             reader.start()
 
-    def stop(self) -> None:
+    def stop(self, timeout_s: float = STOP_S) -> list[str]:
+        """Stop every reader within ``timeout_s`` in all; the names of those still blocked in
+        a read (left to the process's exit)."""
         for reader in self._readers.values():
-            reader.stop()
+            reader.signal_stop()
+        deadline = time.monotonic() + timeout_s
+        return [name for name, reader in self._readers.items() if not reader.join(deadline)]
 
     def wait_first_frames(self, timeout_s: float = FIRST_FRAME_S) -> None:
         """Block until every camera has given a frame (a run calls it from a thread).
@@ -197,15 +231,13 @@ class CameraHub:
         reported down): then nothing goes out."""
         images = []
         for camera in self.cameras:
-            frame, _ = self._readers[camera.name].newest()
+            seen, failure = self._readers[camera.name].newest_seen()
             health = self._health[camera.name]
-            try:
-                if health.down is not None or frame is None or not health.fresh(frame, now_ns):
-                    raise CameraLost(f"{camera.name}: no fresh frame")
-                images.append(self._encode(camera, frame))
-            except CameraLost:
+            if (health.down is not None or failure is not None or seen is None
+                    or not health.fresh(seen.frame, now_ns)):
                 self.withheld += 1
                 return None
+            images.append(seen)
         if self._keep is not None:
             for image in images:
                 self._keep(image.frame)
@@ -243,19 +275,16 @@ class CameraHub:
                 feed(event)
             await asyncio.sleep(WATCH_PERIOD_S)
 
-    def _encode(self, camera: CameraSettings, frame: CameraFrame) -> SeenImage:
-        """The frame's bytes as the manifest asks them sent, once per frame (a JPEG costs
-        about a millisecond; an observation may reuse the frame the last one sent)."""
-        cached = self._encoded.get(camera.name)
-        if cached is not None and cached.frame is frame:
-            return cached
-        if camera.encoding is ImageEncoding.JPEG:
-            data = encode_jpeg(frame, camera.jpeg_quality)
-            seen = SeenImage(frame, ImageEncoding.JPEG, data)
-        else:
-            seen = SeenImage(frame, ImageEncoding.RAW, frame.image.tobytes())
-        self._encoded[camera.name] = seen
-        return seen
+
+def encode(camera: CameraSettings, frame: CameraFrame) -> SeenImage:
+    """The frame as ``camera`` sends it: its raw RGB bytes, or a JPEG (on its reader's thread).
+
+    Raises:
+        CameraLost: the frame does not encode (the reader treats it as a lost camera).
+    """
+    if camera.encoding is ImageEncoding.JPEG:
+        return SeenImage(frame, ImageEncoding.JPEG, encode_jpeg(frame, camera.jpeg_quality))
+    return SeenImage(frame, ImageEncoding.RAW, frame.image.tobytes())
 
 
 def encode_jpeg(frame: CameraFrame, quality: int) -> bytes:

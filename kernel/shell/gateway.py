@@ -130,7 +130,8 @@ class CoreGateway:
         return dataclasses.replace(self.robot, committed=self.core.committed(at, prefix_grid_ns))
 
     def observe_robot(self, q: np.ndarray, qd: np.ndarray, wrench: np.ndarray,
-                      gripper: float | None) -> None:
-        """What the next observation will carry (the control tick updates it each period)."""
+                      gripper: float | None, t_ns: int | None = None) -> None:
+        """What the next observation will carry (the control tick updates it each period;
+        ``t_ns``: when it was measured, on the run's clock)."""
         self.robot = RobotSample(q=q, task_phase=str(self.core.status().phase), qd=qd,
-                                 wrench=wrench, gripper=gripper)
+                                 wrench=wrench, gripper=gripper, measured_ns=t_ns)

@@ -379,7 +379,7 @@ class WardenProtocol:
             qd=wire.optional_payload(sample.qd), wrench=wire.optional_payload(sample.wrench),
             gripper=sample.gripper, rtc=None if prefix is None else wire.prefix_payload(prefix),
             images=tuple(image.payload() for image in images),
-            t_state=now_ns if images else None))
+            t_state=min(now_ns, sample.measured_ns or now_ns) if images else None))
         self._window.sent(observation_id, now_ns)
         self.counters.observations_sent += 1
         return [Feed(ev.ObservationEvent(t=now_ns, observation_id=observation_id, rtc=prefix,

@@ -55,6 +55,9 @@ class RobotSample:
     the grid the link asked for (None: not asked for)."""
     images: tuple[SeenImage, ...] = ()
     """Each camera's newest frame (the manifest's ``[[cameras]]``; none without cameras)."""
+    measured_ns: int | None = None
+    """When ``q`` and the rest were measured, on the run's clock (None: not known; taken as
+    the observation's sending)."""
 
     @property
     def taken_ns(self) -> int | None:
@@ -66,7 +69,7 @@ class CameraFrames(Protocol):
     """Where the link takes an observation's frames (kernel/shell/cameras.py)."""
 
     def images(self, now_ns: int) -> tuple[SeenImage, ...] | None:
-        """Every camera's newest frame; None when one has none fresh enough to send."""
+        """Every camera's newest frame, encoded; None when one has none fresh enough."""
         ...
 
     async def fresh(self, since_ns: int, now_ns: Callable[[], int]) -> None:

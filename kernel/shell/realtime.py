@@ -169,3 +169,11 @@ def _pin(cpus: frozenset[int]) -> str | None:
 
 def _libc() -> ctypes.CDLL:
     return ctypes.CDLL(None, use_errno=True)
+
+
+def thread_at_ordinary_priority() -> None:
+    """The calling thread runs with the ordinary policy, whatever the thread that created it
+    had (Linux gives a new thread its creator's, and the control loop's is SCHED_FIFO): disk
+    writes and camera reads never compete with the loop."""
+    if os.sched_getscheduler(0) != os.SCHED_OTHER:
+        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))

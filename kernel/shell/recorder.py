@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import asyncio
 import json
-import os
 import queue
 import threading
 import time
@@ -32,6 +31,7 @@ from typing import Any
 from kernel.core.events import Event, RecorderFault
 from kernel.core.lines import Line, encode
 from kernel.journal import CommandRecord, command_line, event_record
+from kernel.shell.realtime import thread_at_ordinary_priority
 from kernel.shell.record_file import RecordFile, fault_of
 
 
@@ -170,7 +170,7 @@ class Recorder:
     # -- the writer thread ----------------------------------------------------------------------
 
     def _write_batches(self) -> None:
-        _ordinary_priority()
+        thread_at_ordinary_priority()
         while (batch := self._batches.get()) is not None:
             count = len(batch.events) + len(batch.lines)
             try:
@@ -308,10 +308,3 @@ def _time_of(line: bytes) -> float | None:
         return None
     value = record.get("t") if isinstance(record, dict) else None
     return float(value) if isinstance(value, int | float) else None
-
-
-def _ordinary_priority() -> None:
-    """Disk writes never compete with a real-time control loop: whatever policy the creating
-    thread had, the writer runs with the ordinary one (Linux applies this per thread)."""
-    if os.sched_getscheduler(0) != os.SCHED_OTHER:
-        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))

@@ -91,7 +91,7 @@ class SimWorld:
             self.plant.respawn_peg()
 
     def sim_camera(self, camera: CameraSettings, clock: Callable[[], int]) -> CameraSource:
-        """One of the cell's cameras, rendered from this plant's joints on a thread of its own
+        """One of the cell's cameras, drawn from this plant's joints by a render process
         (stubs/plant/cameras.py), its frames stamped by ``clock`` (the run's)."""
         spec = dataclasses.replace(SIM_SPECS[camera.name], width=camera.width,
                                    height=camera.height)

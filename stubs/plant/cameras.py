@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import select
 import struct
 import subprocess
 import sys
@@ -52,6 +53,11 @@ WRIST = CameraSpec("wrist_rgb", "gripper", (0.0, 0.07, 0.02), (1.0, 0.0, 0.0, 0.
 SCENE = CameraSpec("scene_rgb", "", (0.35, -0.85, 0.75), (0.92, 0.39, 0.0, -0.2, 0.47, 0.86))
 """In front of the table, looking down at the arm, the peg and the fixture."""
 SIM_SPECS = {spec.name: spec for spec in (WRIST, SCENE)}
+START_TIMEOUT_S = 15.0
+"""A render child's start (MuJoCo's import, the model's compile, the GL context): about half a
+second here, idle; longer than a run waits for a camera's first frame, so that wait decides."""
+RENDER_TIMEOUT_S = 5.0
+"""A frame the child has not drawn by then never comes: the child is killed."""
 
 
 def render_model(specs: tuple[CameraSpec, ...]) -> mujoco.MjModel:
@@ -83,20 +89,33 @@ class RenderedCameras:
         self._stop = threading.Event()
         self._wake = threading.Event()
         self._thread: threading.Thread | None = None
+        self._worker: RenderWorker | None = None
+        self._running = threading.Lock()
         self.failure: str | None = None
         """Why the renderer thread ended early (a GL context that would not open)."""
 
     def start(self) -> None:
-        if self._thread is None:
-            self._thread = threading.Thread(target=self._run, name="cameras", daemon=True)
-            self._thread.start()
+        """Start rendering (again, after a stop: a camera that was lost is opened anew)."""
+        with self._running:
+            if self._thread is None:
+                self._stop.clear()
+                self.failure = None
+                self._thread = threading.Thread(target=self._run, name="cameras", daemon=True)
+                self._thread.start()
 
-    def stop(self) -> None:
-        thread, self._thread = self._thread, None
-        if thread is not None:
+    def stop(self, timeout_s: float = 5.0) -> None:
+        """Stop rendering; a render child that does not answer in time is killed."""
+        with self._running:
+            thread, self._thread = self._thread, None
+            if thread is None:
+                return
             self._stop.set()
             self._wake.set()
-            thread.join(timeout=5.0)
+            thread.join(timeout=timeout_s)
+            worker = self._worker
+            if thread.is_alive() and worker is not None:
+                worker.kill()  # the thread is stuck in a read of a hung child: this ends it
+                thread.join(timeout=timeout_s)
 
     def latest(self, name: str) -> CameraFrame | None:
         with self._lock:
@@ -113,7 +132,7 @@ class RenderedCameras:
 
     def _run(self) -> None:
         try:
-            worker = RenderWorker(self.specs)
+            self._worker = worker = RenderWorker(self.specs)
         except RenderFailed as error:  # no GL context there: say so, give no frames
             self.failure = str(error)
             return
@@ -152,7 +171,11 @@ class RenderWorker:
             self._proc = subprocess.Popen(
                 command, stdin=subprocess.PIPE, stdout=subprocess.PIPE, start_new_session=True,
                 env={**os.environ, "MUJOCO_GL": "egl", PARENT_PID: str(os.getpid())})
-        self.nq: int = struct.unpack("<I", self._read(4))[0]
+        try:
+            self.nq: int = struct.unpack("<I", self._read(4, START_TIMEOUT_S))[0]
+        except RenderFailed:
+            self.close()
+            raise
 
     def render(self, qpos: np.ndarray) -> list[np.ndarray]:
         """Every camera's RGB image of the cell posed at ``qpos``."""
@@ -168,6 +191,11 @@ class RenderWorker:
         return [np.frombuffer(self._read(s.height * s.width * 3), dtype=np.uint8).reshape(
             s.height, s.width, 3) for s in self.specs]
 
+    def kill(self) -> None:
+        """End a child that stopped answering (its reader is then told so by the pipe)."""
+        with contextlib.suppress(ProcessLookupError):
+            self._proc.kill()
+
     def close(self) -> None:
         if self._proc.stdin is not None:
             with contextlib.suppress(OSError):
@@ -180,20 +208,34 @@ class RenderWorker:
         if self._proc.stdout is not None:
             self._proc.stdout.close()
 
-    def _read(self, size: int) -> bytes:
+    def _read(self, size: int, timeout_s: float = RENDER_TIMEOUT_S) -> bytes:
+        """``size`` bytes from the child within ``timeout_s`` (a hung child is a failure, and
+        is killed, not waited for)."""
         stdout = self._proc.stdout
-        data = stdout.read(size) if stdout is not None else b""
-        if len(data) != size:
-            raise RenderFailed(f"the render process ended (exit code {self._proc.poll()}; "
-                               "its own message is on stderr; offscreen rendering needs EGL)")
-        return data
+        if stdout is None:
+            raise RenderFailed("the render process has no output")
+        deadline = time.monotonic() + timeout_s
+        chunks, got = [], 0
+        while got < size:
+            ready, _, _ = select.select([stdout], [], [], max(0.0, deadline - time.monotonic()))
+            chunk = os.read(stdout.fileno(), size - got) if ready else None
+            if not chunk:
+                if chunk is None:
+                    self.kill()
+                why = "did not answer in time" if chunk is None else "ended"
+                raise RenderFailed(f"the render process {why} (exit code {self._proc.poll()}; "
+                                   "its own message is on stderr; offscreen rendering needs "
+                                   "EGL)")
+            chunks.append(chunk)
+            got += len(chunk)
+        return b"".join(chunks)
 
 
 class RenderedCamera:
     """One rendered camera as a :class:`~drivers.camera.CameraSource`: its newest frame."""
 
     def __init__(self, name: str, cameras: RenderedCameras,
-                 first_frame_timeout_s: float = 5.0) -> None:
+                 first_frame_timeout_s: float = START_TIMEOUT_S) -> None:
         self.name = name
         self._cameras = cameras
         self._timeout_s = first_frame_timeout_s

@@ -2,7 +2,8 @@
 
 The policy is scripted and looks at no pixel, but a server that needs cameras must be sure it
 got them: every camera it was started with (``--camera NAME:WxH``) exactly once, nothing else,
-at its size, its bytes what its encoding says, a raw frame's digest the one its bytes give, and
+at its size (a JPEG's declared size is read from its header before anything is decoded, and it
+may be no larger than the raw pixels), a raw frame's digest the one its bytes give, and
 none taken before the observation's own time (which is its oldest frame's). Anything else is a
 protocol violation: the client broke its handshake's promise of those observation keys.
 """
@@ -83,10 +84,46 @@ def _pixels(image: Image, camera: CameraShape) -> np.ndarray:
         if _digest(rgb) != image.digest:
             raise ImageProblem(f"{camera.name}: the bytes do not give the frame's digest")
         return rgb
+    # Nothing is decoded before it is known to be a JPEG of the camera's size, no larger than
+    # its raw pixels: a hostile file that declares 14000 x 14000 would otherwise cost seconds
+    # and a gigabyte (and OpenCV decodes any format it is given).
+    if len(image.data) > camera.raw_bytes or jpeg_size(image.data) != (camera.width,
+                                                                         camera.height):
+        raise ImageProblem(f"{camera.name}: not a {camera.width}x{camera.height} JPEG")
     bgr = cv2.imdecode(np.frombuffer(image.data, dtype=np.uint8), cv2.IMREAD_COLOR)
     if bgr is None or bgr.shape != (camera.height, camera.width, 3):
         raise ImageProblem(f"{camera.name}: not a {camera.width}x{camera.height} JPEG")
     return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+
+
+_SOF = frozenset({0xC0, 0xC1, 0xC2, 0xC3, 0xC5, 0xC6, 0xC7, 0xC9, 0xCA, 0xCB, 0xCD, 0xCE, 0xCF})
+"""The start-of-frame markers: each carries the image's height and width."""
+
+
+def jpeg_size(data: bytes) -> tuple[int, int] | None:
+    """(width, height) from a JPEG's frame header, read from its markers without decoding;
+    None for anything that is not a JPEG, or whose header is cut or malformed."""
+    if data[:3] != b"\xff\xd8\xff":
+        return None
+    at = 2
+    while at + 4 <= len(data):
+        if data[at] != 0xFF:
+            return None
+        marker = data[at + 1]
+        if marker == 0xFF:  # a fill byte before the marker
+            at += 1
+            continue
+        if marker in _SOF:
+            if at + 9 > len(data):
+                return None
+            height = int.from_bytes(data[at + 5:at + 7], "big")
+            width = int.from_bytes(data[at + 7:at + 9], "big")
+            return width, height
+        length = int.from_bytes(data[at + 2:at + 4], "big")
+        if length < 2:
+            return None
+        at += 2 + length
+    return None
 
 
 def _digest(rgb: np.ndarray) -> str:

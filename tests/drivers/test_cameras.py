@@ -115,3 +115,20 @@ def _wait_for(condition: Callable[[], bool], timeout_s: float = 5.0) -> None:
     while not condition():
         assert time.monotonic() < deadline, "timed out"
         time.sleep(0.005)
+
+
+def test_a_rendered_camera_closed_after_a_loss_renders_again_when_opened() -> None:
+    small = (dataclasses.replace(WRIST, width=32, height=32),)
+    qpos = render_model(small).qpos0.copy()
+    cameras = RenderedCameras(small, rate_hz=50.0, qpos=lambda: qpos.copy(),
+                              calibration_epoch="sim-1")
+    camera = cameras.camera("wrist_rgb")
+    camera.open()
+    first = camera.read()
+    camera.close()  # what a camera reader does when it lost the camera
+    camera.open()   # ... and when it opens it again
+    try:
+        _wait_for(lambda: camera.read().t_capture_ns > first.t_capture_ns)
+    finally:
+        camera.close()
+    assert cameras.failure is None

@@ -5,6 +5,8 @@ a recorded video that ends (a camera unplugged) and is opened again (plugged bac
 
 from __future__ import annotations
 
+import os
+import threading
 import time
 from pathlib import Path
 
@@ -108,3 +110,65 @@ def test_a_video_that_ends_is_a_lost_camera_and_its_reopening_brings_it_back(
         hub.stop()
     # No frame yet (LOST), the file plays (BACK), ends (LOST), is opened again and plays.
     assert seen[-2:] == [CameraStatus.LOST, CameraStatus.BACK], seen
+
+
+class _PolicyRecording(PatternCamera):
+    """Remembers the scheduling policy of the thread that reads it."""
+
+    policies: set[int]
+
+    def read(self):  # type: ignore[no-untyped-def]
+        self.policies.add(os.sched_getscheduler(0))
+        return super().read()
+
+
+def test_a_camera_is_read_at_the_ordinary_policy_even_when_the_loop_is_real_time() -> None:
+    camera = _PolicyRecording("wrist_rgb", _clock)
+    camera.policies = set()
+    hub = CameraHub((settings("wrist_rgb"),), {"wrist_rgb": camera})
+    started: dict[str, int] = {}
+
+    def real_time_loop() -> None:  # what the control loop's thread is when it starts the hub
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(10))
+        except PermissionError:
+            return
+        started["policy"] = os.sched_getscheduler(0)
+        hub.start()
+
+    thread = threading.Thread(target=real_time_loop)
+    thread.start()
+    thread.join()
+    if not started:
+        hub.stop()
+        pytest.skip("not exercised: this user may not set SCHED_FIFO")
+    try:
+        hub.wait_first_frames(5.0)
+    finally:
+        hub.stop()
+    assert started["policy"] == os.SCHED_FIFO and camera.policies == {os.SCHED_OTHER}
+
+
+def test_a_reader_stuck_in_a_read_does_not_hold_the_stop_past_its_deadline() -> None:
+    release = threading.Event()
+    blocked = threading.Semaphore(0)
+
+    class Unplugged(PatternCamera):
+        def read(self):  # type: ignore[no-untyped-def]
+            if self.count >= 1:
+                blocked.release()
+                release.wait(10.0)  # a V4L2 read on a device that went away
+            return super().read()
+
+    names = ("wrist_rgb", "scene_rgb")
+    hub = CameraHub(tuple(settings(n) for n in names), {n: Unplugged(n, _clock) for n in names})
+    hub.start()
+    hub.wait_first_frames(5.0)
+    for _ in names:
+        assert blocked.acquire(timeout=5.0)  # both readers are in the read that hangs
+    try:
+        # One deadline for all: each join gets what is left of it, so this returns, with
+        # both named, although neither read ever returns on its own.
+        assert hub.stop(timeout_s=0.3) == list(names)
+    finally:
+        release.set()

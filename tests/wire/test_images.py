@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import hashlib
 
+import cv2
 import msgspec
 import numpy as np
 import pytest
@@ -16,7 +17,7 @@ from kernel import wire
 from kernel.core.events import ObservationEvent
 from kernel.shell.cameras import CameraHub, encode_jpeg
 from kernel.shell.link_types import SeenImage
-from stubs.policy_server.images import CameraShape, ImageProblem, check_images
+from stubs.policy_server.images import CameraShape, ImageProblem, check_images, jpeg_size
 from stubs.policy_server.protocol import Observation as PeerObservation
 from tests.wire.cameras import HEIGHT, WIDTH, PatternCamera, settings
 from tests.wire.harness import (
@@ -159,3 +160,19 @@ def test_an_oversized_image_field_is_refused_by_the_decoder() -> None:
     body = msgspec.msgpack.encode(msgspec.structs.replace(big, height=5000))
     with pytest.raises(msgspec.ValidationError):
         msgspec.msgpack.decode(body, type=wire.WireImage)
+
+
+def test_a_hostile_picture_is_refused_before_it_is_decoded() -> None:
+    """A PNG (not what it claims), a JPEG that declares another size, one larger than the raw
+    pixels, and bytes that only start like a JPEG are each refused without decoding them."""
+    observation = _peer_decoded(_seen(wire.ImageEncoding.JPEG), 100)
+    first = observation.images[0]
+    rgb = PatternCamera("x", lambda: 0).read().image
+    png = cv2.imencode(".png", rgb)[1].tobytes()
+    big = cv2.imencode(".jpg", np.zeros((HEIGHT * 4, WIDTH * 4, 3), np.uint8))[1].tobytes()
+    for data in (png, big, first.data + b"\x00" * (WIDTH * HEIGHT * 3), b"\xff\xd8\xff\xe0"):
+        hostile = msgspec.structs.replace(observation, images=(
+            msgspec.structs.replace(first, data=data), *observation.images[1:]))
+        with pytest.raises(ImageProblem, match="not a 64x48 JPEG"):
+            check_images(hostile, SHAPES, 3)
+    assert jpeg_size(first.data) == (WIDTH, HEIGHT) and jpeg_size(big) == (WIDTH * 4, HEIGHT * 4)
