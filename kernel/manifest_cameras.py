@@ -76,12 +76,6 @@ class CameraSettings(msgspec.Struct, frozen=True, kw_only=True):
                                                      or device.startswith("/dev/"))
 
     @property
-    def frame_bytes(self) -> int:
-        """The most one frame's pixels take on the wire (a JPEG is never larger in practice,
-        but is bounded by the same figure)."""
-        return self.width * self.height * 3
-
-    @property
     def opencv_device(self) -> int | str:
         """What OpenCV opens: an index for digits, else the path."""
         device = self.device or ""

@@ -43,11 +43,10 @@ IMAGE_PROTOCOL = 3
 MAX_FRAME_BYTES = 1 << 20
 """The protocol's ceiling on a chunk frame; a client may configure a lower limit (the
 manifest's ``policy.max_frame_bytes``). Larger frames are refused by the transport (close
-1009). An observation with frames may be larger: :func:`observation_frame_bytes`."""
+1009). An observation with frames may be larger: a server sizes its own limit from its cameras
+(docs/protocol.md, "Camera frames")."""
 MAX_IMAGES = 8
 MAX_IMAGE_SIDE = 4096
-OBSERVATION_OVERHEAD_BYTES = 1 << 16
-"""What the frames' own fields (names, times, digests, epochs) add to their pixels, at most."""
 SERVER_CLOCK_DOMAIN = "server"
 """The ``clock_domain`` of the server's times, and the domain of the client's clock sync."""
 MAX_CLOCK_OFFSET_NS = 2**62
@@ -326,12 +325,6 @@ def prefix_payload(prefix: RtcPrefix) -> WirePrefix:
     return WirePrefix(actions=ArrayPayload.from_array(actions),
                       first_action_time=prefix.first_due, action_dt=prefix.action_dt,
                       delay=prefix.delay, horizon=prefix.horizon)
-
-
-def observation_frame_bytes(image_bytes: int) -> int:
-    """The largest observation frame whose frames hold ``image_bytes`` of pixels in all: what
-    a server sizes its frame limit from (the manifest's cameras)."""
-    return MAX_FRAME_BYTES + image_bytes + OBSERVATION_OVERHEAD_BYTES
 
 
 def vector_payload(values: np.ndarray | tuple[float, ...]) -> ArrayPayload:
