@@ -252,8 +252,7 @@ class CameraHub:
             reader.source.trigger()  # type: ignore[attr-defined]
         deadline = now_ns() + round(timeout_s * 1e9)
         while waiting and now_ns() < deadline:
-            waiting = [r for r in waiting if (r.newest()[0] is None
-                                              or r.newest()[0].t_capture_ns < since_ns)]
+            waiting = [r for r in waiting if not _taken_since(r.newest()[0], since_ns)]
             if waiting:
                 await asyncio.sleep(POLL_S)
 
@@ -274,6 +273,10 @@ class CameraHub:
             for event in self.check(now_ns()):
                 feed(event)
             await asyncio.sleep(WATCH_PERIOD_S)
+
+
+def _taken_since(frame: CameraFrame | None, since_ns: int) -> bool:
+    return frame is not None and frame.t_capture_ns >= since_ns
 
 
 def encode(camera: CameraSettings, frame: CameraFrame) -> SeenImage:

@@ -266,10 +266,8 @@ class OpenpiProtocol:
         for image in sample.images:  # uint8 H×W×3, as openpi's image transforms take them
             values[self.link.image_keys[image.frame.camera]] = image.frame.image
         data = encode_observation(values)
-        taken = min(now_ns, sample.taken_ns if sample.images else now_ns)
-        # With frames, the joints' own reading time (a tick before); without, as it is sent.
-        measured = min(now_ns, sample.measured_ns or now_ns) if sample.images else now_ns
-        self._in_flight = _Request(observation_id, taken, measured, queue_epoch,
+        self._in_flight = _Request(observation_id, sample.taken_at(now_ns),
+                                   sample.measured_at(now_ns), queue_epoch,
                                    str(sample.task_phase), tuple(float(v) for v in sample.q))
         self._reply_by = now_ns + self.timing.request_timeout_ns
         self.counters.observations_sent += 1

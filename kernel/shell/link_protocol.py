@@ -24,6 +24,7 @@ the link").
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 from dataclasses import dataclass
 from typing import Protocol
@@ -371,15 +372,16 @@ class WardenProtocol:
         (frames travel from protocol 3 on: the manifest allows no lower version with cameras)."""
         observation_id = f"{self.client_id}/{next(self._observation_ids)}"
         prefix = self._rtc.prefix(sample.committed, now_ns)
-        images = sample.images if (self.version or 0) >= wire.IMAGE_PROTOCOL else ()
-        taken = min(now_ns, sample.taken_ns if images else now_ns)
+        if sample.images and (self.version or 0) < wire.IMAGE_PROTOCOL:
+            sample = dataclasses.replace(sample, images=())
+        images = sample.images
         frame = self._send(wire.Observation(
-            observation_id=observation_id, t_event=taken, queue_epoch=queue_epoch,
+            observation_id=observation_id, t_event=sample.taken_at(now_ns), queue_epoch=queue_epoch,
             task_phase=str(sample.task_phase), q=wire.vector_payload(sample.q),
             qd=wire.optional_payload(sample.qd), wrench=wire.optional_payload(sample.wrench),
             gripper=sample.gripper, rtc=None if prefix is None else wire.prefix_payload(prefix),
             images=tuple(image.payload() for image in images),
-            t_state=min(now_ns, sample.measured_ns or now_ns) if images else None))
+            t_state=sample.measured_at(now_ns) if images else None))
         self._window.sent(observation_id, now_ns)
         self.counters.observations_sent += 1
         return [Feed(ev.ObservationEvent(t=now_ns, observation_id=observation_id, rtc=prefix,

@@ -59,10 +59,17 @@ class RobotSample:
     """When ``q`` and the rest were measured, on the run's clock (None: not known; taken as
     the observation's sending)."""
 
-    @property
-    def taken_ns(self) -> int | None:
-        """When the oldest of its frames was taken (None: it carries none)."""
-        return min((image.frame.t_capture_ns for image in self.images), default=None)
+    def taken_at(self, sent_ns: int) -> int:
+        """When the observation was taken: its oldest frame's capture, or ``sent_ns``
+        without frames (never later than ``sent_ns``)."""
+        return min([sent_ns, *(image.frame.t_capture_ns for image in self.images)])
+
+    def measured_at(self, sent_ns: int) -> int:
+        """When the joints it carries were measured: the tick's sample with frames (the
+        policy extrapolates from here), ``sent_ns`` without (as an observation always was)."""
+        if not self.images:
+            return sent_ns
+        return min(sent_ns, self.measured_ns or sent_ns)
 
 
 class CameraFrames(Protocol):
