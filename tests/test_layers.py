@@ -1,4 +1,4 @@
-"""Imports run one way: stubs → kernel → drivers, skills → assurance.
+"""Imports run one way: stubs → kernel → drivers, skills → assurance; sidecars → peer.
 
 Every ``.py`` under the layered packages is parsed (not imported) and every import of a project
 package is checked, including imports inside functions and under ``TYPE_CHECKING``, relative
@@ -26,15 +26,19 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-PROJECT = frozenset({"assurance", "skills", "drivers", "kernel", "stubs", "tools", "tests"})
+PROJECT = frozenset({"assurance", "skills", "drivers", "kernel", "stubs", "peer", "sidecars",
+                     "tools", "tests"})
 LAYERS: dict[str, frozenset[str]] = {
     "assurance": frozenset({"assurance"}),
     "skills": frozenset({"skills", "assurance"}),
     "drivers": frozenset({"drivers", "assurance"}),
     "kernel": frozenset({"kernel", "drivers", "skills", "assurance"}),
-    "stubs": frozenset({"stubs", "kernel", "drivers", "skills", "assurance"}),
+    "stubs": frozenset({"stubs", "peer", "kernel", "drivers", "skills", "assurance"}),
+    "peer": frozenset({"peer"}),
+    "sidecars": frozenset({"sidecars", "peer"}),
 }
-"""Layer → the project packages its modules may import."""
+"""Layer → the project packages its modules may import. ``peer`` (the policy server's side of
+warden's wire) and ``sidecars`` run in a sidecar's own small venv: nothing of warden's below."""
 STAND_INS = ("stubs/ur_controller", "stubs/dynamixel_bus", "stubs/cia402_drive",
              "stubs/policy_server")
 STAND_IN_FORBIDDEN = frozenset({"drivers", "kernel"})

@@ -38,13 +38,13 @@ from kernel.shell.link_protocol import (
 )
 from kernel.shell.link_settings import PolicySettings
 from kernel.shell.link_types import LinkCounters, LinkTiming
-from stubs.policy_server.cartesian import output_for
-from stubs.policy_server.envelope import (
+from peer.envelope import (
     ChunkSource,
     Proposal,
     ReplacementPolicy,
     chunk_frame,
 )
+from stubs.policy_server.cartesian import output_for
 from stubs.policy_server.policy import InsertionPolicy, LatencyModel
 
 

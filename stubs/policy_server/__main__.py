@@ -14,9 +14,9 @@ import sys
 
 import uvloop
 
-from stubs.policy_server.access import Access, read_token
+from peer.access import Access, read_token
+from peer.envelope import ReplacementPolicy
 from stubs.policy_server.config import DEFAULT_GOAL, ServerConfig
-from stubs.policy_server.envelope import ReplacementPolicy
 from stubs.policy_server.faults import FaultConfig
 from stubs.policy_server.images import CameraShape
 from stubs.policy_server.policy import LatencyModel

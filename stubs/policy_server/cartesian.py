@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 
-from stubs.policy_server.envelope import ActionFrame, ActionUnits
+from peer.envelope import ActionFrame, ActionUnits
 from stubs.robot_model.kinematics import arm_kinematics
 
 

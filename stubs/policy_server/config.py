@@ -11,13 +11,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from stubs.policy_server.access import Access
-from stubs.policy_server.envelope import ChunkSource, ReplacementPolicy
+from peer.access import Access
+from peer.envelope import ChunkSource, ReplacementPolicy
+from peer.handshake import HandshakeOffer
+from peer.protocol import MAX_FRAME_BYTES, PROTOCOL_RANGE
 from stubs.policy_server.faults import FaultConfig
-from stubs.policy_server.handshake import HandshakeOffer
 from stubs.policy_server.images import CameraShape
 from stubs.policy_server.policy import InsertionPolicy, LatencyModel
-from stubs.policy_server.protocol import MAX_FRAME_BYTES, PROTOCOL_RANGE
 
 DEFAULT_START = (0.0, -1.2, 1.5, -1.87, -1.57, 0.0)
 DEFAULT_GOAL = (0.1, -1.35, 1.7, -1.92, -1.57, 0.05)

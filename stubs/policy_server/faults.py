@@ -38,13 +38,13 @@ from dataclasses import dataclass, fields
 
 import msgspec
 
-from stubs.policy_server.envelope import (
+from peer.envelope import (
     ChunkEnvelope,
     chunk_body_frame,
     encode_chunk_body,
     encode_chunk_frame,
 )
-from stubs.policy_server.protocol import MAX_FRAME_BYTES, ArrayPayload, encode_raw
+from peer.protocol import MAX_FRAME_BYTES, ArrayPayload, encode_raw
 
 _FRACTIONS = ("drop", "duplicate", "reorder", "spike", "garbage", "nonfinite", "wrong_dim")
 

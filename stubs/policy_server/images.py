@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from stubs.policy_server.protocol import IMAGE_VERSION, Image, Observation
+from peer.protocol import IMAGE_VERSION, Image, Observation
 
 
 class ImageProblem(ValueError):

@@ -7,9 +7,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from peer.protocol import INT64_MAX, Prefix, ProtocolViolation, payload_rows
 from stubs.policy_server.config import ServerConfig
 from stubs.policy_server.policy import InsertionPolicy
-from stubs.policy_server.protocol import INT64_MAX, Prefix, ProtocolViolation, payload_rows
 
 MAX_PREFIX_ROWS = 1024
 

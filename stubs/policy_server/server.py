@@ -22,29 +22,16 @@ from websockets.asyncio.server import Server, ServerConnection
 from websockets.asyncio.server import serve as ws_serve
 from websockets.exceptions import ConnectionClosed
 
-from stubs.policy_server.access import SUBPROTOCOL
-from stubs.policy_server.cartesian import output_for
-from stubs.policy_server.config import ServerConfig
-from stubs.policy_server.envelope import (
+from peer.access import SUBPROTOCOL
+from peer.envelope import (
     ChunkEnvelope,
     Proposal,
     chunk_body_frame,
     chunk_envelope,
     encode_chunk_frame,
 )
-from stubs.policy_server.faults import (
-    ChunkFaults,
-    FaultPlan,
-    flood_chunks,
-    flood_junk,
-    garbage_chunk_body,
-    garbage_frame,
-    oversized_frame,
-    unknown_type_frame,
-)
-from stubs.policy_server.handshake import HandshakeOffer, HandshakeVerdict, fingerprint
-from stubs.policy_server.images import ImageProblem, check_images
-from stubs.policy_server.protocol import (
+from peer.handshake import HandshakeOffer, HandshakeVerdict, fingerprint
+from peer.protocol import (
     Bye,
     ByeReason,
     ClockPing,
@@ -65,6 +52,19 @@ from stubs.policy_server.protocol import (
     message_type,
     payload_vector,
 )
+from stubs.policy_server.cartesian import output_for
+from stubs.policy_server.config import ServerConfig
+from stubs.policy_server.faults import (
+    ChunkFaults,
+    FaultPlan,
+    flood_chunks,
+    flood_junk,
+    garbage_chunk_body,
+    garbage_frame,
+    oversized_frame,
+    unknown_type_frame,
+)
+from stubs.policy_server.images import ImageProblem, check_images
 from stubs.policy_server.rtc import ServerPrefix, conditioned_actions, read_prefix
 
 

@@ -15,10 +15,10 @@ from kernel.app.check import check_device, load_checked
 from kernel.app.check_policy import policy_rows
 from kernel.manifest import Manifest, load_manifest
 from kernel.signing import generate_keypair, sign
+from peer.access import Access
 from stubs.cell.sim_world import SimWorld
 from stubs.plant.mujoco_plant import MujocoPlant
 from stubs.policy_server import PolicyServer
-from stubs.policy_server.access import Access
 from tests.cell.harness import MANIFESTS
 from tests.wire.harness import server_config
 from tests.wire.pki import Pki, make_pki

@@ -54,8 +54,8 @@ def _journal() -> bytes:
 def _wire_seeds(target: str) -> Iterator[bytes]:
     from hypothesis.errors import NonInteractiveExampleWarning
 
-    from stubs.policy_server import envelope as peer_env
-    from stubs.policy_server import protocol as peer
+    from peer import envelope as peer_env
+    from peer import protocol as peer
     from tests.wire.peer_strategies import CHUNKS, MESSAGES
 
     with warnings.catch_warnings():

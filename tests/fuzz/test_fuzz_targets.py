@@ -16,8 +16,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from kernel.wire import MessageType
-from stubs.policy_server import envelope as peer_env
-from stubs.policy_server import protocol as peer
+from peer import envelope as peer_env
+from peer import protocol as peer
 from tests.fuzz import targets
 from tests.fuzz.mutate import byte_mutated
 from tests.wire.peer_strategies import CHUNKS, MESSAGES

@@ -12,9 +12,9 @@ import numpy as np
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from stubs.policy_server import envelope as peer_env
-from stubs.policy_server import handshake as peer_hs
-from stubs.policy_server import protocol as peer
+from peer import envelope as peer_env
+from peer import handshake as peer_hs
+from peer import protocol as peer
 
 INT64 = st.integers(-(2**63), 2**63 - 1)
 TIME = st.integers(-(2**63 - 1), 2**63 - 1)

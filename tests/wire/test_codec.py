@@ -34,7 +34,7 @@ from kernel.wire import (
     payload_vector,
     vector_payload,
 )
-from stubs.policy_server.envelope import ChunkEnvelope
+from peer.envelope import ChunkEnvelope
 from stubs.policy_server.faults import garbage_chunk_body, garbage_frame, oversized_frame
 
 SIDE = ClientSide(skill="peg_insert", skill_version="3.1.0", observation_keys=("joint_pos",),

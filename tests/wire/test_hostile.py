@@ -21,9 +21,9 @@ from kernel.shell.link_intake import OTHERS_QUEUED
 from kernel.shell.link_settings import PolicySettings
 from kernel.shell.link_types import ClientConfig
 from kernel.wire import MAX_CLOCK_OFFSET_NS
+from peer import envelope as peer_env
+from peer import protocol as peer
 from stubs.policy_server import FaultConfig
-from stubs.policy_server import envelope as peer_env
-from stubs.policy_server import protocol as peer
 from tests.wire.harness import (
     LoopbackGateway,
     journal_round_trip,

@@ -17,8 +17,8 @@ from kernel import wire
 from kernel.core.events import ObservationEvent
 from kernel.shell.cameras import CameraHub, encode_jpeg
 from kernel.shell.link_types import SeenImage
+from peer.protocol import Observation as PeerObservation
 from stubs.policy_server.images import CameraShape, ImageProblem, check_images, jpeg_size
-from stubs.policy_server.protocol import Observation as PeerObservation
 from tests.wire.cameras import HEIGHT, WIDTH, PatternCamera, settings
 from tests.wire.harness import (
     LoopbackGateway,

@@ -2,7 +2,7 @@
 manifest's CA bundle, a client certificate, a bearer token, the ``warden.v1`` subprotocol.
 
 A real client and a real core against the reference server over loopback TLS (its own TLS
-code, stubs/policy_server/access.py). Each refusal (a server certificate from another
+code, peer/access.py). Each refusal (a server certificate from another
 authority, a wrong token, plain text to a TLS-only server, no client certificate where one is
 required, a server that is not warden's) is a clear line, counted, and nothing moves: no
 session, no chunk admitted, the arm where it started.
@@ -24,7 +24,7 @@ from websockets.exceptions import InvalidStatus
 
 from kernel.shell.link_security import SUBPROTOCOL, LinkSecurity, link_security
 from kernel.shell.link_settings import AuthSettings, PolicySettings, TlsSettings
-from stubs.policy_server.access import Access
+from peer.access import Access
 from tests.wire.harness import Link, running, server_config, wait_for
 from tests.wire.pki import Pki, make_pki
 

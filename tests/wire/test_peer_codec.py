@@ -18,9 +18,9 @@ from hypothesis import strategies as st
 from assurance import handshake as warden_hs
 from assurance.envelope import Chunk, WireChunk, decode_wire_chunk
 from kernel import wire
-from stubs.policy_server import envelope as peer_env
-from stubs.policy_server import handshake as peer_hs
-from stubs.policy_server import protocol as peer
+from peer import envelope as peer_env
+from peer import handshake as peer_hs
+from peer import protocol as peer
 from stubs.policy_server.config import ServerConfig
 from tests.wire.peer_strategies import CHUNKS, CLIENT_HELLO, MESSAGES, OFFER
 

@@ -13,7 +13,7 @@ from assurance.rtc import Committed
 from kernel.core.events import ChunkEvent, ObservationEvent
 from kernel.shell.link_rtc import PrefixPlanner
 from kernel.wire import WirePrefix, prefix_payload
-from stubs.policy_server import protocol as peer_protocol
+from peer import protocol as peer_protocol
 from stubs.policy_server.rtc import read_prefix
 from tests.wire.harness import (
     LoopbackGateway,

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from peer.envelope import ReplacementPolicy
 from stubs.policy_server import FaultConfig, InsertionPolicy, LatencyModel
 from stubs.policy_server.__main__ import parse_args
-from stubs.policy_server.envelope import ReplacementPolicy
 from stubs.policy_server.faults import FaultPlan
 
 GOAL = np.array([0.5, -0.2, 0.0])

@@ -17,7 +17,7 @@ from typing import Annotated
 import msgspec
 import numpy as np
 
-from stubs.policy_server.handshake import ClientHello, HandshakeDecision, HandshakeOffer
+from peer.handshake import ClientHello, HandshakeDecision, HandshakeOffer
 
 PROTOCOL_RANGE: tuple[int, int] = (1, 3)
 """The wire versions this server speaks; version 2 adds ``clock_report``, version 3 camera

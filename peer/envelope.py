@@ -15,7 +15,7 @@ from typing import Annotated
 import msgspec
 import numpy as np
 
-from stubs.policy_server.protocol import (
+from peer.protocol import (
     SERVER_CLOCK_DOMAIN,
     ArrayPayload,
     MessageType,
