@@ -37,9 +37,9 @@ from kernel import wire
 from kernel.core.events import ObservationEvent
 from kernel.manifest_cameras import CameraKind, CameraSettings
 from kernel.shell.cameras import CameraHub
+from peer.frames import CameraShape
 from stubs.plant.cameras import SIM_SPECS, RenderedCameras, render_model
 from stubs.policy_server import LatencyModel
-from stubs.policy_server.images import CameraShape
 from tests.wire.harness import LoopbackGateway, running, server_config
 
 NAMES = ("wrist_rgb", "scene_rgb")

@@ -16,9 +16,9 @@ import uvloop
 
 from peer.access import Access, read_token
 from peer.envelope import ReplacementPolicy
+from peer.frames import CameraShape
 from stubs.policy_server.config import DEFAULT_GOAL, ServerConfig
 from stubs.policy_server.faults import FaultConfig
-from stubs.policy_server.images import CameraShape
 from stubs.policy_server.policy import LatencyModel
 from stubs.policy_server.server import PolicyServer
 

@@ -13,10 +13,10 @@ import numpy as np
 
 from peer.access import Access
 from peer.envelope import ChunkSource, ReplacementPolicy
+from peer.frames import CameraShape
 from peer.handshake import HandshakeOffer
 from peer.protocol import MAX_FRAME_BYTES, PROTOCOL_RANGE
 from stubs.policy_server.faults import FaultConfig
-from stubs.policy_server.images import CameraShape
 from stubs.policy_server.policy import InsertionPolicy, LatencyModel
 
 DEFAULT_START = (0.0, -1.2, 1.5, -1.87, -1.57, 0.0)

@@ -30,6 +30,7 @@ from peer.envelope import (
     chunk_envelope,
     encode_chunk_frame,
 )
+from peer.frames import ImageProblem, check_images
 from peer.handshake import HandshakeOffer, HandshakeVerdict, fingerprint
 from peer.protocol import (
     Bye,
@@ -64,7 +65,7 @@ from stubs.policy_server.faults import (
     oversized_frame,
     unknown_type_frame,
 )
-from stubs.policy_server.images import ImageProblem, check_images
+from stubs.policy_server.images import decode_jpeg
 from stubs.policy_server.rtc import ServerPrefix, conditioned_actions, read_prefix
 
 
@@ -296,7 +297,8 @@ class _Connection:
             raise ProtocolViolation("an observation before an accepted handshake")
         q = payload_vector(observation.q, len(self.config.goal))
         try:
-            pixels = check_images(observation, self.config.cameras, self.version or 1)
+            pixels = check_images(observation, self.config.cameras, self.version or 1,
+                                  decode_jpeg)
         except ImageProblem as problem:
             raise ProtocolViolation(str(problem)) from None
         self.stats.frames_seen += len(pixels)

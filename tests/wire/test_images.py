@@ -17,8 +17,9 @@ from kernel import wire
 from kernel.core.events import ObservationEvent
 from kernel.shell.cameras import CameraHub, encode_jpeg
 from kernel.shell.link_types import SeenImage
+from peer.frames import CameraShape, ImageProblem, check_images, jpeg_size
 from peer.protocol import Observation as PeerObservation
-from stubs.policy_server.images import CameraShape, ImageProblem, check_images, jpeg_size
+from stubs.policy_server.images import decode_jpeg
 from tests.wire.cameras import HEIGHT, WIDTH, PatternCamera, settings
 from tests.wire.harness import (
     LoopbackGateway,
@@ -122,8 +123,8 @@ def test_the_peer_codec_reads_raw_frames_to_the_pixel() -> None:
 
 def test_the_peer_codec_decodes_jpeg_frames_near_enough() -> None:
     images = _seen(wire.ImageEncoding.JPEG)
-    for image, rgb in zip(images, check_images(_peer_decoded(images, 100), SHAPES, 3),
-                          strict=True):
+    pixels = check_images(_peer_decoded(images, 100), SHAPES, 3, decode_jpeg)
+    for image, rgb in zip(images, pixels, strict=True):
         error = np.abs(rgb.astype(int) - image.frame.image.astype(int)).mean()
         other = np.abs(rgb.astype(int) - np.roll(image.frame.image, 7, axis=1).astype(int))
         assert error < 8.0 < other.mean(), (error, other.mean())  # this picture, not another
@@ -174,5 +175,11 @@ def test_a_hostile_picture_is_refused_before_it_is_decoded() -> None:
         hostile = msgspec.structs.replace(observation, images=(
             msgspec.structs.replace(first, data=data), *observation.images[1:]))
         with pytest.raises(ImageProblem, match="not a 64x48 JPEG"):
-            check_images(hostile, SHAPES, 3)
+            check_images(hostile, SHAPES, 3, decode_jpeg)
     assert jpeg_size(first.data) == (WIDTH, HEIGHT) and jpeg_size(big) == (WIDTH * 4, HEIGHT * 4)
+
+
+def test_a_server_without_a_jpeg_codec_refuses_jpeg_frames() -> None:
+    observation = _peer_decoded(_seen(wire.ImageEncoding.JPEG), 100)
+    with pytest.raises(ImageProblem, match="raw frames only"):
+        check_images(observation, SHAPES, 3)
