@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed-stamp
 
-.PHONY: run test test-fast lint bench replay clean fuzz mutants
+.PHONY: run test test-fast lint bench replay clean fuzz mutants sidecar-lerobot interop
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -30,10 +30,21 @@ test: $(STAMP)
 # driver; 1545 tests, 145 s of CPU, less the 22 s tests/scenarios saved by replaying each scenario
 # once for the tests that read its log); `make test` runs them too, with everything else.
 FAST_TESTS := tests/core tests/runtime tests/scenarios tests/wire tests/kinematics tests/plant \
-	tests/fuzz tests/test_layers.py
+	tests/fuzz tests/sidecars tests/test_layers.py
 
 test-fast: $(STAMP)
 	$(BIN)/pytest -q -m "not slow" $(FAST_TESTS)
+
+# The LeRobot sidecar's own venv (grpcio, NumPy, msgspec, websockets: sidecars/lerobot/
+# requirements.lock) under build/; prints its Python: `<python> -m sidecars.lerobot CONFIG`.
+sidecar-lerobot: $(STAMP)
+	$(BIN)/python -m tools.venvs lerobot-sidecar
+
+# The simulated cell driven by LeRobot's own PolicyServer (0.4.4, a random ACT) through the
+# sidecar: builds the LeRobot venv (torch from LEROBOT_WHEELS, /opt/wheels by default; about a
+# minute and 1.8 GB) and reports what warden did (tests/interop/lerobot/interop.py).
+interop: $(STAMP)
+	$(BIN)/python -m tests.interop.lerobot.interop
 
 lint: $(STAMP)
 	$(BIN)/ruff check .
