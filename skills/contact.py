@@ -57,6 +57,22 @@ MAX_DESCENT_M = 0.5
 mistake, refused before any work."""
 
 
+RETREAT_LIFT_M = 0.02
+"""How far a retreat lifts the tool when no descent ran (from a hold)."""
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class RetreatPlan:
+    """A force-aware retreat, planned: the tool from ``q``'s pose (height ``z``) straight up to
+    ``z_start``, along the vertical through ``xy``, held at ``rotation``."""
+
+    q: np.ndarray
+    z: float
+    z_start: float
+    xy: np.ndarray
+    rotation: np.ndarray
+
+
 class NoKinematics(ValueError):
     """A Cartesian descent was asked of a contact owner that has no kinematic model."""
 
@@ -190,19 +206,49 @@ class ContactOwner:
         up, if no descent ran); without a kinematic model, a compliant hold where it is."""
         if self.state in (ContactState.RETREATING, ContactState.RETREATED):
             return
-        self._softness = 1.0
-        self._q = np.asarray(q, dtype=float).copy()
-        self.generation += 1
+        self.start_retreat(self.plan_retreat(q), q)
+
+    def plan_retreat(self, q: np.ndarray) -> RetreatPlan | None:
+        """The retreat :meth:`begin_retreat` would run from ``q`` now, without starting it (None
+        without a kinematic model): after a descent, back up its axis to the height it began
+        at; otherwise 2 cm straight up."""
         if self.kin is None:
+            return None
+        start = np.asarray(q, dtype=float).copy()
+        pose = self.kin.forward(start)
+        z = float(pose.position[2])
+        if self.state in (ContactState.IDLE, ContactState.HOLDING, ContactState.RELAXED):
+            return RetreatPlan(start, z, z + RETREAT_LIFT_M, pose.position[:2].copy(),
+                               pose.rotation.copy())
+        return RetreatPlan(start, z, self._z_start, self._xy.copy(), self._rotation.copy())
+
+    def start_retreat(self, plan: RetreatPlan | None, q: np.ndarray) -> None:
+        """Run ``plan`` (None: hold compliantly at ``q``, there being no model to lift with)."""
+        self._softness = 1.0
+        self._q = np.asarray(q if plan is None else plan.q, dtype=float).copy()
+        self.generation += 1
+        if plan is None:
             self.state = ContactState.RETREATED
             return
-        pose = self.kin.forward(self._q)
-        self._z = float(pose.position[2])
-        if self.state in (ContactState.IDLE, ContactState.HOLDING, ContactState.RELAXED):
-            self._z_start = self._z + 0.02
-            self._xy = pose.position[:2]
-            self._rotation = pose.rotation
+        self._z, self._z_start = plan.z, plan.z_start
+        self._xy, self._rotation = plan.xy, plan.rotation
         self.state = ContactState.RETREATING
+
+    def retreat_path(self, plan: RetreatPlan, step_m: float) -> np.ndarray:
+        """The configurations ``plan`` passes through, every ``step_m`` of height and at its
+        end, each solved from the one before as the law solves them (what a clearance check
+        looks at before the retreat may start); one row, where it is, when it has nowhere to
+        go."""
+        kin = self._kinematics()
+        rise = max(plan.z_start - plan.z, 0.0)
+        count = max(1, math.ceil(rise / step_m - 1e-9))  # 2 cm in 5 mm steps: 4, not 5
+        current = plan.q.copy()
+        rows = np.empty((count, current.shape[0]))
+        for k in range(count):
+            z = plan.z + rise * (k + 1) / count
+            current = rows[k] = kin.solve(Pose(np.array([*plan.xy, z]), plan.rotation),
+                                          current).q
+        return rows
 
     def step(self, now_ns: int, dt_s: float, force_norm: float,
              bounded_target: np.ndarray | None = None) -> ContactCommand:

@@ -58,7 +58,9 @@ from kernel.core.jobs import (
     run_job,
 )
 from kernel.core.lines import ChunkLine, Decision
-from kernel.core.motion import NOT_CHECKED, move_checked
+from kernel.core.motion import move_checked
+from kernel.core.motion_state import NOT_CHECKED
+from kernel.core.retreat import retreat_checked
 from kernel.core.state import CoreState
 from kernel.core.verdict import answered_unusably, commit, log_decision, refuse
 
@@ -109,6 +111,9 @@ def on_computed(state: CoreState, result: JobResult) -> None:
     planned move it was asked for)."""
     if result.job_id == state.motion.move_check:
         move_checked(state.motion, _clearance_or_refusal(result), state.t, state.emit)
+        return
+    if result.job_id == state.motion.retreat_check:
+        retreat_checked(state.motion, _clearance_or_refusal(result), state.t, state.emit)
         return
     if result.job_id == state.motion.descent_check:
         descent_checked(state.motion, _clearance_or_refusal(result), state.t, state.emit,

@@ -43,7 +43,8 @@ from kernel.core.lines import (
     MotionLine,
     MotionRequest,
 )
-from kernel.core.motion import MotionContext, request_move
+from kernel.core.motion import request_move
+from kernel.core.motion_state import MotionContext
 from kernel.core.state import CoreState
 from skills.contact import Descent, NoKinematics
 from skills.phases import TaskPhase

@@ -16,7 +16,7 @@ from collections.abc import Callable
 from assurance.clock import ns_to_ms
 from kernel.core.jobs import ClearanceJob, ClearanceResult, rows_of
 from kernel.core.lines import Line, MotionDecision, MotionLine, MotionRequest
-from kernel.core.motion import MotionContext, MotionState, collision_detail
+from kernel.core.motion_state import MotionContext, MotionState, collision_detail
 from skills.contact import Descent, DescentStatus, NoKinematics
 
 DESCENT_CHECK_STEP_M = 0.005

@@ -50,6 +50,7 @@ class MotionRequest(StrEnum):
     MOVE = "move"
     GRIPPER = "gripper"
     INSERT = "insert"
+    RETREAT = "retreat"
 
 
 class MotionDecision(StrEnum):

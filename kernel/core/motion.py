@@ -23,88 +23,25 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field
 
 import numpy as np
 
 from assurance.clock import ns_to_ms
 from assurance.fallback import FallbackCommand, Owner
-from kernel.core.config import CoreConfig
 from kernel.core.effects import Hold, Motion, Retreat, Setpoint, Stop
 from kernel.core.jobs import ClearanceJob, ClearanceResult, rows_of
 from kernel.core.lines import Line, MotionDecision, MotionLine, MotionRequest
-from skills.contact import ContactOwner, ContactState, Descent, DescentStatus
+from kernel.core.motion_state import MotionContext, MotionState, collision_detail
+from kernel.core.retreat import drop_retreat, retreat
+from skills.contact import ContactState
 from skills.interpolator import InterpolatorConfig, SetpointInterpolator
 from skills.planner import MoveStatus, PlannedMove, PlanningError, joint_move
-from skills.trajectory import MotionLimits
 
 RESUME_AT_REST_RAD_S = 1e-3
 RESUME_AT_REST_RAD_S2 = 1e-2
 RESUME_SETTLED_RAD = 1e-6
 """When the interpolator counts as settled, so a planner move may start from rest: this close
 to its latched target, this slow, this little acceleration."""
-
-
-@dataclass(slots=True, eq=False)
-class MotionState:
-    """The motion layer's state inside :class:`~kernel.core.state.CoreState`."""
-
-    interpolator_limits: MotionLimits
-    planner_limits: MotionLimits
-    contact: ContactOwner
-    interpolator: SetpointInterpolator | None = None
-    commanded: np.ndarray | None = None
-    gripper: float | None = None
-    force: float = 0.0
-    move: PlannedMove | None = None
-    move_id: int = 0
-    move_target: np.ndarray | None = None
-    move_status: MoveStatus = MoveStatus.NONE
-    move_detail: str = ""
-    planner_had_tick: bool = False
-    awaiting_rest: bool = False
-    rest_target: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    move_check: int | None = None
-    """The clearance job of the planned move, while its answer is awaited (the arm stays at
-    rest until the move is cleared)."""
-    descent_check: int | None = None
-    """The clearance job of the contact owner's descent, while its answer is awaited (the
-    contact owner holds where the arm was until the descent is cleared)."""
-    descent: Descent | None = None
-    """The descent that job is for."""
-    descent_asked: tuple[int, str] = (0, "")
-    """The contact owner's generation and the task phase when that job was asked for: an
-    answer after either changed is about a descent nobody holds for any more."""
-    descent_status: DescentStatus = DescentStatus.NONE
-
-
-def initial_motion(config: CoreConfig) -> MotionState:
-    limits, motion = config.limits, config.motion
-    arm = MotionLimits.from_joint_limits(limits, motion.interpolator_jerk)
-    velocity = np.minimum(arm.velocity, motion.planner_velocity)
-    planner = MotionLimits(arm.lower, arm.upper, velocity,
-                           np.minimum(arm.acceleration, motion.planner_acceleration),
-                           np.full(arm.dof, motion.planner_jerk))
-    contact = ContactOwner(config.kinematics, motion.contact.for_dof(arm.dof))
-    return MotionState(arm, planner, contact)
-
-
-class MotionContext:
-    """What the motion layer reads from the rest of the core for one tick, and where it logs.
-    ``ask``: asks for a job and returns its id (a planned move's clearance check)."""
-
-    __slots__ = ("arm", "ask", "config", "emit", "measured", "phase", "t")
-
-    def __init__(self, config: CoreConfig, t: int, measured_q: np.ndarray,
-                 emit: Callable[[Line], None], phase: str = "",
-                 ask: Callable[[ClearanceJob], int] | None = None) -> None:
-        self.config = config
-        self.t = t
-        self.arm = config.limits.arm_mask
-        self.measured = measured_q[self.arm]
-        self.emit = emit
-        self.phase = phase
-        self.ask = ask
 
 
 def motion_for(m: MotionState, ctx: MotionContext, command: FallbackCommand, owner: Owner,
@@ -115,6 +52,8 @@ def motion_for(m: MotionState, ctx: MotionContext, command: FallbackCommand, own
     a queued action, its step from the action before and the action grid's interval.
     ``relax``: the contact owner stops pressing and holds at that fraction of its stiffness."""
     _start(m, ctx)
+    if owner is not Owner.CONTACT or command is not FallbackCommand.RETREAT:
+        drop_retreat(m, ctx.t, ctx.emit)
     planner_tick = owner is Owner.PLANNER and command in (FallbackCommand.SETPOINT,
                                                           FallbackCommand.RETREAT)
     resuming = planner_tick and not m.planner_had_tick
@@ -257,18 +196,6 @@ def move_checked(m: MotionState, result: ClearanceResult, t: int,
                     move_id=m.move_id, detail=detail))
 
 
-NOT_CHECKED = ("not", "checked")
-"""The pair of a clearance result that stands for a check that could not run."""
-
-
-def collision_detail(result: ClearanceResult) -> str:
-    """What a refused motion's line says: the pair, its distance and the clearance."""
-    if result.pair == NOT_CHECKED:
-        return "not checked: its clearance job could not run, and nothing moves unchecked"
-    return (f"COLLISION: {result.pair[0]} and {result.pair[1]} at {result.distance:.4f} m "
-            f"(at least {result.bound:.4f} m on the way) need {result.needed:.4f} m")
-
-
 def _planner_effect(m: MotionState, q: tuple[float, ...], retreat: bool) -> Motion:
     if retreat:
         return Retreat(q=q, gripper=m.gripper, owner=Owner.PLANNER)
@@ -280,7 +207,7 @@ def _contact(m: MotionState, ctx: MotionContext, command: FallbackCommand,
     contact = m.contact
     measured = _inside(m, ctx.measured)  # a measured overshoot is never a target
     if command is FallbackCommand.RETREAT:
-        contact.begin_retreat(measured)
+        retreat(m, ctx, measured)  # checked first where the cell has geometry
     elif relax is not None:
         contact.relax(measured, relax)
     elif contact.state is ContactState.IDLE:

@@ -28,7 +28,7 @@ from kernel.core.effects import Compute, DecisionRecord, Effect, EndSession
 from kernel.core.jobs import ClearanceJob
 from kernel.core.lines import Line, Machine, QueueLine, TransitionLine
 from kernel.core.lines import QueueAction as QueueAct
-from kernel.core.motion import MotionState, initial_motion
+from kernel.core.motion_state import MotionState, initial_motion
 from skills.phases import PhaseCard, TaskPhase
 from skills.task_fsm import TaskDecision, TaskMachine
 

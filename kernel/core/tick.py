@@ -23,7 +23,8 @@ from kernel.core.authority import outside_envelope, validate
 from kernel.core.cameras import cameras_seeing, check_cameras
 from kernel.core.effects import Motion, RequestObservation
 from kernel.core.lines import QueueAction, QueueLine, RequestLine, SentRef, TickLine
-from kernel.core.motion import MotionContext, motion_for
+from kernel.core.motion import motion_for
+from kernel.core.motion_state import MotionContext
 from kernel.core.state import CoreState
 from skills.phases import Executor, TaskPhase
 
