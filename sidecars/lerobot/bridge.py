@@ -89,7 +89,8 @@ class SidecarStats:
     """Observations replaced by a newer one before they went to LeRobot."""
     inferences: int = 0
     chunks_sent: int = 0
-    replies_refused: list[str] = field(default_factory=list)
+    replies_refused: int = 0
+    last_refusal: str = ""
     empty_replies: int = 0
     prepare_s: list[float] = field(default_factory=list)
     inference_s: list[float] = field(default_factory=list)
@@ -303,12 +304,13 @@ class _Session:
             log.warning("observation %s: LeRobot answered Empty (its queue timed out or its "
                         "inference raised: its log says which)", sent.observation.observation_id)
             return
-        try:
-            actions = reply_actions(self.config, sent, read_reply(data))
+        try:  # on a thread: the websocket's heartbeats go on while a large reply is read
+            actions = reply_actions(self.config, sent, await asyncio.to_thread(read_reply, data))
         except (ReplyRefused, ReplyMismatch) as error:
-            self.stats.replies_refused.append(str(error))
+            self.stats.replies_refused += 1
+            self.stats.last_refusal = str(error)[:300]
             log.error("observation %s: reply refused: %s", sent.observation.observation_id,
-                      error)
+                      self.stats.last_refusal)
             return
         await self._send(chunk_frame(self._source(), self._proposal(sent, actions, t_start,
                                                                      t_end)))

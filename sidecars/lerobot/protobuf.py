@@ -23,6 +23,9 @@ PIECE_BYTES = 2 * 1024 * 1024
 MESSAGE_LIMIT = 4 * 1024 * 1024
 """LeRobot's MAX_MESSAGE_SIZE: the largest message either side accepts."""
 
+MOST_FIELDS = 64
+"""``Actions`` has one field; a message of millions of tiny unknown ones is refused early."""
+
 _LENGTH_DELIMITED = 2
 _VARINT = 0
 
@@ -69,7 +72,11 @@ def actions_data(message: bytes) -> bytes:
         MalformedMessage: a truncated field, a bad varint or field 1 of another wire type.
     """
     data = b""
-    for number, wire_type, value in _fields(message):
+    for count, (number, wire_type, value) in enumerate(_fields(message)):
+        if count >= MOST_FIELDS:
+            raise MalformedMessage(f"more than {MOST_FIELDS} fields in one message")
+        if number == 0:
+            raise MalformedMessage("field number 0")
         if number == 1:
             if wire_type != _LENGTH_DELIMITED:
                 raise MalformedMessage("Actions.data is not length-delimited")
@@ -95,6 +102,7 @@ def _fields(message: bytes) -> Iterator[tuple[int, int, bytes]]:
             at += 8 if wire_type == 1 else 4
             if at > len(message):
                 raise MalformedMessage("a fixed-width field runs past the message's end")
+            yield number, wire_type, b""
         else:
             raise MalformedMessage(f"wire type {wire_type} is not one these messages use")
 

@@ -57,7 +57,9 @@ def test_an_actions_message_is_read_strictly() -> None:
     assert protobuf.actions_data(b"") == b""  # the server's Empty
     assert protobuf.actions_data(b"\x10\x05\x0a\x02ok") == b"ok"  # an unknown varint skipped
     for broken in (b"\x0a\x05ab", b"\x0a", b"\x0a\xff\xff\xff\xff\xff\xff\xff\xff\xff\xff\x01",
-                   b"\x08\x01", b"\x0b"):
+                   b"\x08\x01", b"\x0b", b"\x0d\x00\x00\x00\x00",  # field 1 as fixed32
+                   b"\x09" + b"\x00" * 8, b"\x02\x00",  # as fixed64; field number 0
+                   b"\x10\x00" * 65):  # more fields than a message of one has
         with pytest.raises(MalformedMessage):
             protobuf.actions_data(broken)
 

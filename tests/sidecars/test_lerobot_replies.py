@@ -85,7 +85,10 @@ HOSTILE = {
     "a zero-stride tensor of a trillion elements": (
         _one(asm.tensor(asm.storage_blob(np.zeros(6, np.float32)), 0, (MOST_ELEMENTS,
                                                                          MOST_ELEMENTS), (0, 0))),
-        "more than"),
+        "not one contiguous row"),
+    "a zero-stride row of a million values": (
+        _one(asm.tensor(asm.storage_blob(np.zeros(1, np.float32)), 0, (MOST_ELEMENTS,), (0,))),
+        "not one contiguous row"),
     "a tensor that needs gradients": (
         _one(asm.tensor(asm.storage_blob(np.zeros(6, np.float32)), 0, (6,), (1,),
                         requires_grad=True)), "gradients"),
@@ -102,17 +105,49 @@ HOSTILE = {
     "an empty list": (asm.listing(), "a list of 1 to"),
     "a dict in place of the list": (pickle.dumps({"actions": [1.0]}), "a list of 1 to"),
     "a list of plain numbers": (pickle.dumps([1.0, 2.0]), "not all TimedActions"),
-    "a persistent id outside a storage": (b"\x80\x02X\x01\x00\x00\x00aQ.", "persistent id"),
+    "a persistent id outside a storage": (b"\x80\x02X\x01\x00\x00\x00aQ.",
+                                          "opcode BINPERSID is not one"),
+    # Found by a red-team review (each crashed, exhausted memory or time, or poisoned later
+    # replies before the opcode scan and the sealed globals):
+    "a tuple nested 200,000 deep, hashed as a dict key": (
+        b"\x80\x02}" + b")" + b"\x85" * 200_000 + b"K\x01s.", "nested more than"),
+    "a memo index of 2**27": (b"\x80\x02Nr\x00\x00\x00\x08.", "memo index out of the order"),
+    "integer dict keys that all hash alike": (
+        b"\x80\x02}(" + b"".join(asm.integer(i * (2**61 - 1)) + b"N" for i in range(50))
+        + b"u.", "a dict key that is not text"),
+    "a million empty sets": (b"\x80\x04(" + b"\x8f" * 1000 + b"l.", "opcode EMPTY_SET"),
+    "an extension code": (b"\x80\x02\x82\x01.", "opcode EXT1"),
+    "a BUILD that would rewrite an allowed global": (
+        b"\x80\x02" + asm.global_("torch._utils", "_rebuild_tensor_v2") + b"N}"
+        + asm.text("__defaults__") + b"K\x01\x85s\x86b.", "a BUILD on an allowed global"),
+    "a BUILD inside a storage blob": (
+        _one(_row(inner_global=asm.global_("torch", "FloatStorage")
+                  + asm.tuple_(asm.text("x")) + b"b")), "opcode BUILD is not one"),
+    "a global named by four megabytes": (
+        b"\x80\x02c" + b"m" * (4 << 20) + b"\nx\n.", "the global m{60}\\.x is not"),
     "bytes that are no pickle": (b"\x00\x01garbage", "not a pickle LeRobot writes"),
 }
 
 
 @pytest.mark.parametrize("name", sorted(HOSTILE))
 def test_a_hostile_reply_is_refused_before_anything_runs(name: str) -> None:
+    """And leaves nothing behind: the real reply read next reads as before."""
     data, message = HOSTILE[name]
-    with pytest.raises(ReplyRefused, match=message.replace(".", r"\.")):
+    pattern = message if "\\" in message else message.replace(".", r"\.")
+    with pytest.raises(ReplyRefused, match=pattern) as refused:
         read_reply(data)
+    assert len(str(refused.value)) < 400
     assert CANARY_CALLS == []
+    test_a_real_servers_reply_reads_as_torch_read_it(0)
+
+
+def test_one_storage_named_again_and_again_is_decoded_once_within_a_budget() -> None:
+    blob = asm.storage_blob(np.arange(6, dtype=np.float32))
+    first = (asm.global_("torch.storage", "_load_from_bytes") + b"q\x00"  # memo 0: the call
+             + b"(" + asm.binary(blob) + b"q\x01tR")  # memo 1: the blob
+    again = b"h\x00(h\x01tR" * 5000
+    with pytest.raises(ReplyRefused, match="more than 4096 calls"):
+        read_reply(b"\x80\x02](" + first + again + b"e.")
 
 
 def test_a_cut_real_reply_is_refused() -> None:
