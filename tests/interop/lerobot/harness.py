@@ -39,13 +39,13 @@ CHECKPOINT = "lerobot-act:random-seed-20261129"
 FPS = 30
 
 
-def sidecar_toml(lerobot_port: int, **lerobot: Any) -> str:
+def sidecar_toml(lerobot_port: int, listen: str = "", **lerobot: Any) -> str:
     settings = {"server": f"127.0.0.1:{lerobot_port}", "policy_type": "act",
                 "pretrained_name_or_path": "build/lerobot-act", "actions_per_chunk": 50,
                 "fps": FPS, "reply_timeout_s": 5.0, **lerobot}
     lines = [f"joints = {json.dumps(list(JOINTS))}", "", "[lerobot]",
              *(f"{key} = {json.dumps(value)}" for key, value in settings.items()), "",
-             "[listen]", "port = 0", "",
+             "[listen]", "port = 0", listen, "",
              "[offer]", f'policy_checkpoint = "{CHECKPOINT}"',
              f"observation_keys = {json.dumps(list(OBSERVATION_KEYS))}", ""]
     for warden_name, lerobot_name in CAMERAS:
@@ -171,10 +171,12 @@ class Robot:
 
 
 @contextlib.asynccontextmanager
-async def robot(port: int, identity: dict[str, Any]):  # type: ignore[no-untyped-def]
+async def robot(port: int, identity: dict[str, Any],  # type: ignore[no-untyped-def]
+                token: str | None = None):
     allowlist = frozenset({(identity["policy_checkpoint"], identity["config_hash"])})
+    headers = {} if token is None else {"Authorization": f"Bearer {token}"}
     async with connect(f"ws://127.0.0.1:{port}", subprotocols=["warden.v1"],  # type: ignore[list-item]
-                       max_size=4 << 20) as ws:
+                       max_size=4 << 20, additional_headers=headers) as ws:
         beating = asyncio.create_task(_heartbeats(ws))
         try:
             yield Robot(ws, allowlist)

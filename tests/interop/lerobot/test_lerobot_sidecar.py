@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from websockets.exceptions import ConnectionClosed
+from websockets.exceptions import ConnectionClosed, InvalidStatus
 
 from kernel import wire
 from tests.interop.lerobot import harness as h
@@ -145,6 +145,23 @@ async def test_a_jpeg_frame_is_a_protocol_violation(tmp_path: Path) -> None:
             bye = await robot.next_of(wire.Bye)
     assert bye.reason == wire.ByeReason.PROTOCOL_VIOLATION
     assert "raw frames only" in bye.detail
+
+
+async def test_a_sidecar_with_a_token_refuses_a_robot_without_it(tmp_path: Path) -> None:
+    token = tmp_path / "token"
+    token.write_text("s3cret-robot-token\n")
+    listen = f'token_file = "{token}"'
+    with h.stand_in(h.CAPTURED, tmp_path) as (lerobot_port, _), \
+            h.sidecar(h.sidecar_toml(lerobot_port, listen=listen), tmp_path) as (port, identity, _):
+        for wrong in (None, "guess"):
+            with pytest.raises(InvalidStatus) as refused:
+                async with h.robot(port, identity, token=wrong):
+                    pass
+            assert refused.value.response.status_code == 401
+        async with h.robot(port, identity, token="s3cret-robot-token") as robot:
+            await robot.handshake()
+            await robot.observe(0, *_observation(0))
+            assert (await robot.next_chunk()).observation_id == "o0"
 
 
 def test_a_bad_configuration_exits_2_naming_the_key(tmp_path: Path) -> None:
