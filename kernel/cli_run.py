@@ -257,6 +257,9 @@ def _with_overrides(manifest: Manifest, cycles: int | None, clock: str | None) -
         if cell.clock is ClockKind.VIRTUAL and manifest.cameras:
             raise ManifestError(f"--clock virtual: {manifest.path} has [[cameras]], which see "
                                 "the cell on the wall clock")
+        if cell.clock is ClockKind.VIRTUAL and manifest.metrics is not None:
+            raise ManifestError(f"--clock virtual: {manifest.path} has [metrics], which a "
+                                "virtual-clock run does not serve")
     return dataclasses.replace(manifest, cell=cell)
 
 

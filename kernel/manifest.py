@@ -40,6 +40,7 @@ from kernel.settings import (
     ClockKind,
     EmulatorSettings,
     JournalSettings,
+    MetricsSettings,
     OperatorSettings,
     PlantKind,
     TrialEnvelope,
@@ -101,11 +102,13 @@ class Manifest:
     such table, warden sends no heartbeat and the monitor refuses the manifest)."""
     cameras: tuple[CameraSettings, ...] = ()
     """``[[cameras]]`` (kernel/manifest_cameras.py)."""
+    metrics: MetricsSettings | None = None
+    """``[metrics]``: a Prometheus endpoint (None: no such table, none is served)."""
 
 
 _TOP_KEYS = frozenset({"name", "description", "cell", "driver", "emulator", "policy",
                        "journal", "task", "operator", "trial", "safety", "cameras",
-                       *SCENARIO_SECTIONS})
+                       "metrics", *SCENARIO_SECTIONS})
 
 
 def load_manifest(path: str | Path, content: bytes | None = None,
@@ -176,6 +179,7 @@ def _load(path: Path, raw: str, credentials: bool) -> Manifest:
         safety=safety_table(doc, where, core.control_period_ns),
         trial=_trial(doc, where),
         cameras=cameras,
+        metrics=_metrics(doc, where, cell),
     )
 
 
@@ -299,6 +303,21 @@ def _task(doc: Mapping[str, Any], where: Where, core: CoreConfig) -> TaskSetting
         return None
     settings: TaskSettings = _read(TaskSettings, doc, "task", where)
     check_home(settings, core.limits, where.at("task"))
+    return settings
+
+
+def _metrics(doc: Mapping[str, Any], where: Where, cell: CellSettings) -> MetricsSettings | None:
+    if "metrics" not in doc:
+        return None
+    settings: MetricsSettings = _read(MetricsSettings, doc, "metrics", where)
+    if not is_loopback(settings.host):
+        raise where.at("metrics").at("host").error(
+            f"{settings.host!r} is not a loopback address: the endpoint has no authentication "
+            "(put a scraper or a proxy on this host)")
+    if cell.clock is ClockKind.VIRTUAL:
+        raise where.at("metrics").error(
+            "a virtual-clock run serves no live metrics (it ends in seconds; its summary has "
+            "the same figures)")
     return settings
 
 

@@ -73,6 +73,14 @@ class JournalSettings(msgspec.Struct, frozen=True, kw_only=True):
     frames: FrameRecord = FrameRecord.DIGESTS
 
 
+class MetricsSettings(msgspec.Struct, frozen=True, kw_only=True):
+    """``[metrics]``: a Prometheus endpoint on this host (kernel/shell/metrics.py)."""
+
+    port: Annotated[int, Meta(ge=1, le=65535)]
+    host: str = "127.0.0.1"
+    publish_interval_ms: Annotated[float, Meta(ge=50.0, le=60_000.0)] = 500.0
+
+
 class WorkspaceSection(msgspec.Struct, frozen=True, kw_only=True):
     lower: tuple[float, float, float]
     upper: tuple[float, float, float]

@@ -34,13 +34,14 @@ from kernel.app.session import (
     report_progress,
 )
 from kernel.core.events import LinkEvent, LinkStatus
-from kernel.manifest import Manifest
+from kernel.manifest import Manifest, ManifestError
 from kernel.shell.cameras import CameraHub
 from kernel.shell.client import RobotClient
 from kernel.shell.frame_store import FrameStore
 from kernel.shell.heartbeat import HeartbeatSender
 from kernel.shell.link_budget import AdmissionPacer
 from kernel.shell.link_types import ClientConfig
+from kernel.shell.metrics import MetricsEndpoint
 from kernel.shell.operator import OperatorServer
 from kernel.shell.realtime import log_report, restore, try_realtime
 from kernel.shell.supervisor import RestartPolicy, Supervisor, describe, failure_fields
@@ -73,12 +74,20 @@ async def run_live(manifest: Manifest, journal_dir: Path | None,
 async def _run_live(manifest: Manifest, journal_dir: Path | None,
                     progress: CycleProgress | None, hook: TickHook | None,
                     stop: StopSignals) -> dict[str, Any]:
-    context = open_run(manifest, MonotonicClock(), journal_dir, progress)
+    metrics = metrics_endpoint(manifest)  # a port that is taken: exit 2, before anything opens
+    try:
+        context = open_run(manifest, MonotonicClock(), journal_dir, progress)
+    except BaseException:
+        if metrics is not None:
+            metrics.close()
+        raise
     try:
         operator = operator_server(context.cell)
     except BaseException:
         context.cell.world.close()
         close_record(context)
+        if metrics is not None:
+            metrics.close()
         raise
     server: _Launched | None = None
     worker = JobWorker(context.cell.gateway, context.sections, source_of(manifest))
@@ -115,7 +124,10 @@ async def _run_live(manifest: Manifest, journal_dir: Path | None,
                                               security=security),
                                  context.cell.gateway, pacer=loop.pacer, server=server,
                                  cameras=cameras)
-            await _supervise(context, client, worker, operator, loop, failures, cameras)
+            if metrics is not None:
+                metrics.start()
+            await _supervise(context, client, worker, operator, loop, failures, cameras,
+                             metrics)
     finally:
         context.cell.controller.cut_short(cut_short_reason(
             context, stop, failures, ended_by_hook=loop.ended_by_hook))
@@ -133,6 +145,8 @@ async def _run_live(manifest: Manifest, journal_dir: Path | None,
         service.close()
         if server is not None:
             await asyncio.to_thread(server.stop)  # after a restart still under way, if any
+        if metrics is not None:
+            await asyncio.to_thread(metrics.close)
         close_record(context)
     return finish(context, {
         "clock": "wall", "stopped": stop.requested,
@@ -147,6 +161,23 @@ async def _run_live(manifest: Manifest, journal_dir: Path | None,
         "service": {"notify": service.enabled, "sent": service.stats.sent,
                     "failed": service.stats.failed},
     })
+
+
+def metrics_endpoint(manifest: Manifest) -> MetricsEndpoint | None:
+    """``[metrics]``'s socket, bound now. Raises:
+        ManifestError: the port cannot be bound (naming ``metrics.port``)."""
+    settings = manifest.metrics
+    if settings is None:
+        return None
+    try:
+        return MetricsEndpoint(settings.host, settings.port)
+    except OSError as error:
+        raise ManifestError(f"{manifest.path}: metrics.port: cannot listen on "
+                            f"{settings.host}:{settings.port}: {error.strerror}") from None
+
+
+def _loop_counts(context: RunContext) -> dict[str, int]:
+    return {"journal_gaps": context.recorder.stats.gaps, "deadline_misses": context.misses}
 
 
 class _Launched:
@@ -252,7 +283,7 @@ class _Loop:
 
 async def _supervise(context: RunContext, client: RobotClient, worker: JobWorker,
                      operator: OperatorServer | None, loop: _Loop, failures: list[str],
-                     cameras: CameraHub | None) -> None:
+                     cameras: CameraHub | None, metrics: MetricsEndpoint | None) -> None:
     def failed(name: str, error: BaseException) -> None:
         task_failed(context, failures, name, error)
 
@@ -287,6 +318,13 @@ async def _supervise(context: RunContext, client: RobotClient, worker: JobWorker
                 cameras.watch, gateway.now_ns, gateway.feed), critical=True)
         await supervisor.start("policy-link", link, critical=False,
                                restart=RestartPolicy(max_restarts=10))
+        if metrics is not None:  # evidence, not control: its failure ends nothing
+            settings = context.manifest.metrics
+            interval_s = settings.publish_interval_ms / 1e3 if settings else 0.5
+            await supervisor.start("metrics", functools.partial(
+                metrics.publisher.run, summary=context.summary,
+                links=client.counters.snapshot, loop=functools.partial(_loop_counts, context),
+                interval_s=interval_s), critical=False)
         await supervisor.start("control", control, critical=True)
         await done.wait()
         client.stop()
