@@ -30,7 +30,7 @@ test: $(STAMP)
 # driver; 1545 tests, 145 s of CPU, less the 22 s tests/scenarios saved by replaying each scenario
 # once for the tests that read its log); `make test` runs them too, with everything else.
 FAST_TESTS := tests/core tests/runtime tests/scenarios tests/wire tests/kinematics tests/plant \
-	tests/fuzz tests/sidecars tests/test_layers.py
+	tests/fuzz tests/sidecars tests/export tests/test_layers.py
 
 test-fast: $(STAMP)
 	$(BIN)/pytest -q -m "not slow" $(FAST_TESTS)

@@ -79,6 +79,16 @@ def _parser() -> argparse.ArgumentParser:
     rep.add_argument("--check", action="store_true",
                      help="verify the scenario's 'expect'/'forbid' matchers (exit 1 if broken)")
     rep.set_defaults(handler=_replay)
+    export = commands.add_parser(
+        "export", help="write a run's record in a format other tools open",
+        description="Write RUN (a run directory: journal.jsonl, decisions.jsonl) as an MCAP "
+                    "file that Foxglove opens (kernel/export.py says what goes in which topic).")
+    export.add_argument("run", help="the run directory")
+    export.add_argument("--mcap", action="store_true", required=True,
+                        help="write MCAP (the one format so far)")
+    export.add_argument("--out", help="the file to write (default: RUN/run.mcap); never "
+                                      "overwritten")
+    export.set_defaults(handler=_export)
     add_commands(commands)
     add_operator_commands(commands)
     add_trial_commands(commands)
@@ -86,6 +96,18 @@ def _parser() -> argparse.ArgumentParser:
     add_check_commands(commands)
     signing.add_commands(commands)
     return parser
+
+
+def _export(args: argparse.Namespace) -> int:
+    from kernel.export import export_mcap
+
+    run = Path(args.run)
+    out = Path(args.out) if args.out else run / "run.mcap"
+    counts = export_mcap(run, out)
+    print(f"{out}: {sum(counts.values())} messages on {len(counts)} topics")
+    for topic, count in sorted(counts.items()):
+        print(f"  {topic:20} {count}")
+    return EXIT_OK
 
 
 def _version_text() -> str:
