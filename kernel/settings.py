@@ -78,7 +78,7 @@ class MetricsSettings(msgspec.Struct, frozen=True, kw_only=True):
 
     port: Annotated[int, Meta(ge=1, le=65535)]
     host: str = "127.0.0.1"
-    publish_interval_ms: Annotated[float, Meta(ge=50.0, le=60_000.0)] = 500.0
+    publish_interval_ms: Annotated[float, Meta(ge=50.0, le=5_000.0)] = 500.0
 
 
 class WorkspaceSection(msgspec.Struct, frozen=True, kw_only=True):

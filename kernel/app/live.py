@@ -41,7 +41,7 @@ from kernel.shell.frame_store import FrameStore
 from kernel.shell.heartbeat import HeartbeatSender
 from kernel.shell.link_budget import AdmissionPacer
 from kernel.shell.link_types import ClientConfig
-from kernel.shell.metrics import MetricsEndpoint
+from kernel.shell.metrics import MetricsEndpoint, MetricsUnavailable
 from kernel.shell.operator import OperatorServer
 from kernel.shell.realtime import log_report, restore, try_realtime
 from kernel.shell.supervisor import RestartPolicy, Supervisor, describe, failure_fields
@@ -158,6 +158,8 @@ async def _run_live(manifest: Manifest, journal_dir: Path | None,
         "jobs": {"done": worker.done, "failed": worker.failed},
         "operator": _operator_summary(operator), "safety": loop.heartbeat.summary(),
         **({"frames": frames.stats.as_dict()} if frames is not None else {}),
+        **({"metrics": {"port": metrics.port, "exporter_exit": metrics.exit_code}}
+           if metrics is not None else {}),
         "service": {"notify": service.enabled, "sent": service.stats.sent,
                     "failed": service.stats.failed},
     })
@@ -171,9 +173,9 @@ def metrics_endpoint(manifest: Manifest) -> MetricsEndpoint | None:
         return None
     try:
         return MetricsEndpoint(settings.host, settings.port)
-    except OSError as error:
-        raise ManifestError(f"{manifest.path}: metrics.port: cannot listen on "
-                            f"{settings.host}:{settings.port}: {error.strerror}") from None
+    except MetricsUnavailable as error:
+        key = "metrics" + (f".{error.key}" if error.key else "")
+        raise ManifestError(f"{manifest.path}: {key}: {error}") from None
 
 
 def _loop_counts(context: RunContext) -> dict[str, int]:

@@ -60,6 +60,8 @@ class MotionState:
     """The contact owner's generation when that job was asked for."""
     retreat_refused: bool = False
     """The retreat's path breaks a clearance: the contact owner holds until the fallback ends."""
+    retreat_retry_at: int = 0
+    """Its check could not run: not asked again before this time (ns)."""
 
 
 def initial_motion(config: CoreConfig) -> MotionState:

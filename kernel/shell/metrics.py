@@ -7,7 +7,9 @@ writes numbers into a block of shared memory, a fixed layout of float64 slots
 (:class:`MetricsLayout`), every ``publish_interval_ms`` from what the run summary has already
 counted (a few hundred slot writes, nothing per tick); the exporter, a child process with its
 own interpreter, reads the block when it is scraped and formats it. Labels are bounded by
-construction: task phases, reason codes, decisions and fallback modes, never an id.
+construction: task phases, reason codes, decisions and fallback modes, never an id. A scrape
+is not synchronised with a publish: it may read a histogram's sum and count from either side
+of one (counters only ever grow, so no series goes backwards).
 
 The endpoint's socket is bound by warden before the run opens anything, so a port that is
 taken is an invalid manifest (exit 2, naming ``metrics.port``); the child inherits it.
@@ -16,7 +18,6 @@ taken is an invalid manifest (exit 2, naming ``metrics.port``); the child inheri
 from __future__ import annotations
 
 import asyncio
-import bisect
 import socket
 import subprocess
 import sys
@@ -123,9 +124,11 @@ class MetricsBlock:
 
     def close(self) -> None:
         del self.values  # the view must go before the buffer can be released
-        self.memory.close()
-        if self.owner:
-            self.memory.unlink()
+        try:
+            self.memory.close()
+        finally:
+            if self.owner:
+                self.memory.unlink()
 
 
 class MetricsPublisher:
@@ -171,12 +174,18 @@ class MetricsPublisher:
         self._seen["transitions"] = len(transitions)
 
     def _observe(self, name: str, observed: list[float]) -> None:
+        """Bucket what is new, in one vectorised pass (a publish every 5 s at 500 Hz reads
+        2,500 ages)."""
         histogram = LAYOUT.histogram(name)
-        values = self.block.values
-        for value in observed[self._seen[name]:]:
-            values[histogram.at + bisect.bisect_left(histogram.buckets, value)] += 1
-            values[histogram.at + histogram.width - 1] += value
+        new = np.asarray(observed[self._seen[name]:], dtype=float)
         self._seen[name] = len(observed)
+        if new.size == 0:
+            return
+        slots = np.searchsorted(histogram.buckets, new, side="left")  # le: inclusive
+        counts = np.bincount(slots, minlength=len(histogram.buckets) + 1)
+        values = self.block.values
+        values[histogram.at:histogram.at + counts.size] += counts
+        values[histogram.at + histogram.width - 1] += float(new.sum())
 
     async def run(self, started: Callable[[], None], summary: RunSummary,
                   links: Callable[[], Mapping[str, int]],
@@ -188,27 +197,41 @@ class MetricsPublisher:
             await asyncio.sleep(interval_s)
 
 
+class MetricsUnavailable(Exception):
+    """The endpoint cannot be set up; ``key`` is the manifest key to name."""
+
+    def __init__(self, key: str, message: str) -> None:
+        super().__init__(message)
+        self.key = key
+
+
 class MetricsEndpoint:
     """The endpoint of one run: its bound socket, its block and the exporter serving both."""
 
     def __init__(self, host: str, port: int) -> None:
         """Raises:
-            OSError: the address cannot be bound (a port that is taken)."""
+            MetricsUnavailable: the address cannot be bound (a port that is taken), or there is
+                no shared memory for the block."""
         family = socket.AF_INET6 if ":" in host else socket.AF_INET
         self.socket = socket.socket(family, socket.SOCK_STREAM)
         try:
             self.socket.bind((host, port))
             self.socket.listen(16)
-        except OSError:
+        except OSError as error:
             self.socket.close()
-            raise
-        self.block = MetricsBlock()
+            raise MetricsUnavailable("port", f"cannot listen on {host}:{port}: "
+                                             f"{error.strerror}") from None
+        self.port = int(self.socket.getsockname()[1])
+        try:
+            self.block = MetricsBlock()
+        except OSError as error:
+            self.socket.close()
+            raise MetricsUnavailable("", f"no shared memory for the metrics (/dev/shm): "
+                                         f"{error.strerror}") from None
         self.publisher = MetricsPublisher(self.block)
         self._child: subprocess.Popen[bytes] | None = None
-
-    @property
-    def port(self) -> int:
-        return int(self.socket.getsockname()[1])
+        self.exit_code: int | None = None
+        """The exporter's exit status once the run closed it (None: never started)."""
 
     def start(self) -> None:
         """The exporter, given the socket and the block; it exits when its stdin closes (this
@@ -218,20 +241,23 @@ class MetricsEndpoint:
                 [sys.executable, "-m", "kernel.shell.metrics_exporter", "--block",
                  self.block.name, "--fd", str(self.socket.fileno())],
                 stdin=subprocess.PIPE, pass_fds=(self.socket.fileno(),))
+        self.socket.close()  # the exporter's now: were it to die, scrapes are refused, not held
 
     @property
     def pid(self) -> int | None:
         return None if self._child is None else self._child.pid
 
     def close(self) -> None:
-        if self._child is not None:
-            if self._child.stdin is not None:
-                self._child.stdin.close()
-            try:
-                self._child.wait(timeout=5)
-            except subprocess.TimeoutExpired:
-                self._child.kill()
-                self._child.wait()
-        self.socket.close()
-        self.block.close()
+        try:
+            if self._child is not None:
+                if self._child.stdin is not None:
+                    self._child.stdin.close()
+                try:
+                    self.exit_code = self._child.wait(timeout=5)
+                except subprocess.TimeoutExpired:
+                    self._child.kill()
+                    self.exit_code = self._child.wait()
+        finally:
+            self.socket.close()
+            self.block.close()
 

@@ -15,6 +15,7 @@ import socket
 import sys
 import threading
 from collections.abc import Iterator
+from socketserver import ThreadingMixIn
 from wsgiref.simple_server import WSGIRequestHandler, WSGIServer
 
 import numpy as np
@@ -94,15 +95,23 @@ def _histogram(values: np.ndarray, slot: str, documentation: str,
                                  sum_value=float(values[histogram.at + histogram.width - 1]))
 
 
+class _Server(ThreadingMixIn, WSGIServer):
+    """A thread per connection: an idle client holds only its own thread."""
+
+    daemon_threads = True
+
+
 class _Quiet(WSGIRequestHandler):
+    timeout = 5.0  # a client that sends nothing is dropped, not waited on
+
     def log_message(self, format: str, *args: object) -> None:
         pass  # a scrape every few seconds is not news
 
 
-def serve(block: MetricsBlock, listener: socket.socket) -> WSGIServer:
+def serve(block: MetricsBlock, listener: socket.socket) -> _Server:
     registry = CollectorRegistry(auto_describe=True)
     registry.register(BlockCollector(block))
-    server = WSGIServer(listener.getsockname()[:2], _Quiet, bind_and_activate=False)
+    server = _Server(listener.getsockname()[:2], _Quiet, bind_and_activate=False)
     server.socket.close()
     server.socket = listener
     server.server_address = listener.getsockname()[:2]

@@ -6,10 +6,12 @@ from __future__ import annotations
 
 import contextlib
 import os
+import signal
 import socket
 import subprocess
 import sys
 import time
+import urllib.error
 import urllib.request
 from pathlib import Path
 
@@ -17,6 +19,7 @@ import pytest
 from prometheus_client.parser import text_string_to_metric_families
 
 from kernel.cli import main
+from kernel.shell.metrics import MetricsEndpoint
 from tests.cell.harness import MANIFESTS
 
 pytestmark = pytest.mark.slow
@@ -118,3 +121,29 @@ def test_the_exporter_runs_at_the_ordinary_priority_whatever_starts_it() -> None
     if fifo != "True":  # without the privilege the test proves less: say so in its output
         print("SCHED_FIFO not permitted here: the exporter's parent ran at SCHED_OTHER")
     assert os.sched_getscheduler(0) == os.SCHED_OTHER  # this test process never went FIFO
+
+
+def test_an_idle_client_holds_no_scrape_and_a_dead_exporter_refuses_them() -> None:
+    """A client that connects and sends nothing keeps only its own thread; an exporter that
+    died leaves the port refusing scrapes (warden keeps no copy of its socket) and its exit
+    status in the endpoint."""
+    endpoint = MetricsEndpoint("127.0.0.1", 0)
+    endpoint.start()
+    try:
+        with socket.create_connection(("127.0.0.1", endpoint.port)):  # idle: sends nothing
+            for _ in range(50):  # the child is importing its modules at first
+                with contextlib.suppress(OSError):
+                    assert "warden_ticks_total" in _scrape(endpoint.port)
+                    break
+                time.sleep(0.2)
+            else:
+                raise AssertionError("no scrape answered beside an idle client")
+        assert endpoint.pid is not None
+        os.kill(endpoint.pid, signal.SIGKILL)
+        time.sleep(0.5)
+        with pytest.raises(urllib.error.URLError) as refused:
+            _scrape(endpoint.port)
+        assert isinstance(refused.value.reason, ConnectionRefusedError)
+    finally:
+        endpoint.close()
+    assert endpoint.exit_code == -signal.SIGKILL

@@ -150,13 +150,23 @@ def test_a_retreat_no_longer_commanded_starts_nothing() -> None:
     assert cell.tcp_z() == pytest.approx(z_before, abs=1e-3)
 
 
-def test_a_check_that_cannot_run_refuses_the_retreat_and_the_arm_holds() -> None:
+def test_a_check_that_could_not_run_is_asked_again_for_the_same_retreat() -> None:
+    """A job that failed (the worker busy or restarting) is not a COLLISION: the contact owner
+    holds, the same retreat is asked again 100 ms later, and starts once it is cleared."""
     cell = Cell()
+    z_before = cell.tcp_z()
     cell.anomaly()
     cell.tick(1)
-    [job] = cell.asked
-    cell.step(ComputedEvent(t=cell.t, result=JobFailed(job_id=job.job_id, detail="worker died")))
+    [first] = cell.asked
+    cell.step(ComputedEvent(t=cell.t, result=JobFailed(job_id=first.job_id, detail="busy")))
     [line] = cell.retreats()
-    assert line.decision == "refused" and "not checked" in (line.detail or "")
-    cell.tick(100)
-    assert cell.core.status().contact is ContactState.HOLDING
+    assert line.decision == "refused" and "asked again in 100 ms" in (line.detail or "")
+    cell.tick(40)  # 80 ms: not yet
+    assert len(cell.asked) == 1 and cell.core.status().contact is ContactState.HOLDING
+    cell.tick(20)
+    [_, second] = cell.asked
+    assert second.rows == first.rows and second.start == first.start
+    cell.answer(second)
+    assert cell.retreats()[-1].decision == "started"
+    cell.tick(1000)
+    assert cell.tcp_z() == pytest.approx(z_before + RETREAT_LIFT_M, abs=1e-3)
