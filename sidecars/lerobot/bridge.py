@@ -30,14 +30,13 @@ from dataclasses import dataclass, field
 from typing import cast
 
 import numpy as np
-from websockets.asyncio.server import Server, ServerConnection
-from websockets.asyncio.server import serve as ws_serve
+from websockets.asyncio.server import ServerConnection
 from websockets.exceptions import ConnectionClosed
 
-from peer.access import SUBPROTOCOL
 from peer.envelope import ChunkSource, Proposal, chunk_frame
 from peer.frames import CameraShape, ImageProblem, check_images
 from peer.handshake import HandshakeOffer, HandshakeVerdict, fingerprint
+from peer.listener import Listener
 from peer.protocol import (
     MAX_FRAME_BYTES,
     PROTOCOL_RANGE,
@@ -104,39 +103,27 @@ class Sidecar:
         self.setup = config.policy_setup()
         self.stats = SidecarStats()
         self.busy = False
-        self._server: Server | None = None
+        self._listener = Listener()
 
     @property
     def port(self) -> int:
-        if self._server is None:
-            raise RuntimeError("the sidecar is not listening")
-        return int(next(iter(self._server.sockets)).getsockname()[1])
+        return self._listener.port
 
     def offer(self, queue_epoch: int) -> HandshakeOffer:
         return self.config.offer_for(self.setup, queue_epoch)
 
     async def __aenter__(self) -> Sidecar:
         listen = self.config.listen
-        access = listen.access()
         frames = sum(camera.width * camera.height * 3 for camera in self.config.cameras)
-        self._server = await ws_serve(
-            self._handle, listen.host, listen.port,
-            max_size=max(MAX_FRAME_BYTES, frames + (64 << 10)), compression=None,
-            ping_interval=None, close_timeout=1.0, ssl=access.tls(),
-            subprotocols=[SUBPROTOCOL], process_request=access.check,  # type: ignore[list-item]
-        )
+        await self._listener.open(self._handle, listen.host, listen.port,
+                                  max(MAX_FRAME_BYTES, frames + (64 << 10)), listen.access())
         return self
 
     async def __aexit__(self, *exc: object) -> None:
-        if self._server is not None:
-            self._server.close()
-            await self._server.wait_closed()
-            self._server = None
+        await self._listener.close()
 
     async def serve_forever(self) -> None:
-        if self._server is None:
-            raise RuntimeError("the sidecar is not listening")
-        await self._server.serve_forever()
+        await self._listener.serve_forever()
 
     async def _handle(self, ws: ServerConnection) -> None:
         if self.busy:

@@ -18,11 +18,9 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
-from websockets.asyncio.server import Server, ServerConnection
-from websockets.asyncio.server import serve as ws_serve
+from websockets.asyncio.server import ServerConnection
 from websockets.exceptions import ConnectionClosed
 
-from peer.access import SUBPROTOCOL
 from peer.envelope import (
     ChunkEnvelope,
     Proposal,
@@ -32,6 +30,7 @@ from peer.envelope import (
 )
 from peer.frames import ImageProblem, check_images
 from peer.handshake import HandshakeOffer, HandshakeVerdict, fingerprint
+from peer.listener import Listener
 from peer.protocol import (
     Bye,
     ByeReason,
@@ -111,7 +110,7 @@ class PolicyServer:
         self.history: deque[tuple[int, bytes]] = deque(maxlen=64)
         """(epoch, frame) of every chunk produced, sent or not: what a resend can replay."""
         self._sequences: dict[int, itertools.count[int]] = {}
-        self._server: Server | None = None
+        self._listener = Listener()
 
     def now_ns(self) -> int:
         return time.monotonic_ns() + self.config.clock_offset_ns
@@ -121,29 +120,19 @@ class PolicyServer:
 
     @property
     def port(self) -> int:
-        if self._server is None:
-            raise RuntimeError("the server is not listening")
-        return int(next(iter(self._server.sockets)).getsockname()[1])
+        return self._listener.port
 
     async def __aenter__(self) -> PolicyServer:
-        access = self.config.access
-        self._server = await ws_serve(
-            self._handle, self.config.host, self.config.port, max_size=self.config.max_frame_bytes,
-            compression=None, ping_interval=None, close_timeout=1.0, ssl=access.tls(),
-            subprotocols=[SUBPROTOCOL], process_request=access.check,  # type: ignore[list-item]
-        )
+        config = self.config
+        await self._listener.open(self._handle, config.host, config.port,
+                                  config.max_frame_bytes, config.access)
         return self
 
     async def __aexit__(self, *exc: object) -> None:
-        if self._server is not None:
-            self._server.close()
-            await self._server.wait_closed()
-            self._server = None
+        await self._listener.close()
 
     async def serve_forever(self) -> None:
-        if self._server is None:
-            raise RuntimeError("the server is not listening")
-        await self._server.serve_forever()
+        await self._listener.serve_forever()
 
     async def _handle(self, ws: ServerConnection) -> None:
         index = self.stats.connections
