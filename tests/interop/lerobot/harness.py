@@ -8,6 +8,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import json
+import ssl
 import subprocess
 import time
 from collections.abc import Iterator
@@ -172,11 +173,12 @@ class Robot:
 
 @contextlib.asynccontextmanager
 async def robot(port: int, identity: dict[str, Any],  # type: ignore[no-untyped-def]
-                token: str | None = None):
+                token: str | None = None, tls: ssl.SSLContext | None = None):
     allowlist = frozenset({(identity["policy_checkpoint"], identity["config_hash"])})
     headers = {} if token is None else {"Authorization": f"Bearer {token}"}
-    async with connect(f"ws://127.0.0.1:{port}", subprotocols=["warden.v1"],  # type: ignore[list-item]
-                       max_size=4 << 20, additional_headers=headers) as ws:
+    scheme = "ws" if tls is None else "wss"
+    async with connect(f"{scheme}://127.0.0.1:{port}", subprotocols=["warden.v1"],  # type: ignore[list-item]
+                       max_size=4 << 20, additional_headers=headers, ssl=tls) as ws:
         beating = asyncio.create_task(_heartbeats(ws))
         try:
             yield Robot(ws, allowlist)

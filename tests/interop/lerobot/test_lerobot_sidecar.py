@@ -7,16 +7,18 @@ from __future__ import annotations
 
 import asyncio
 import shutil
+import ssl
 import subprocess
 from pathlib import Path
 
 import numpy as np
 import pytest
-from websockets.exceptions import ConnectionClosed, InvalidStatus
+from websockets.exceptions import ConnectionClosed, InvalidHandshake, InvalidStatus
 
 from kernel import wire
 from tests.interop.lerobot import harness as h
 from tests.sidecars import pickle_assembler as asm
+from tests.wire.pki import make_pki
 from tools.venvs import ROOT, sidecar_python
 
 pytestmark = pytest.mark.slow
@@ -159,6 +161,29 @@ async def test_a_sidecar_with_a_token_refuses_a_robot_without_it(tmp_path: Path)
                     pass
             assert refused.value.response.status_code == 401
         async with h.robot(port, identity, token="s3cret-robot-token") as robot:
+            await robot.handshake()
+            await robot.observe(0, *_observation(0))
+            assert (await robot.next_chunk()).observation_id == "o0"
+
+
+async def test_a_sidecar_behind_tls_with_client_certificates(tmp_path: Path) -> None:
+    """``wss://`` with a client certificate required: a robot with the cell's certificate is
+    served; one without a certificate, or trusting another authority, never connects."""
+    (tmp_path / "pki").mkdir()
+    pki = make_pki(tmp_path / "pki")
+    listen = (f'cert_file = "{pki.server_cert}"\nkey_file = "{pki.server_key}"\n'
+              f'client_ca = "{pki.ca}"')
+    good = ssl.create_default_context(cafile=str(pki.ca))
+    good.load_cert_chain(pki.client_cert, pki.client_key)
+    anonymous = ssl.create_default_context(cafile=str(pki.ca))
+    foreign = ssl.create_default_context(cafile=str(pki.other_ca))
+    with h.stand_in(h.CAPTURED, tmp_path) as (lerobot_port, _), \
+            h.sidecar(h.sidecar_toml(lerobot_port, listen=listen), tmp_path) as (port, identity, _):
+        for refused in (anonymous, foreign):
+            with pytest.raises((ssl.SSLError, ConnectionClosed, InvalidHandshake, OSError)):
+                async with h.robot(port, identity, tls=refused) as robot:
+                    await robot.handshake()
+        async with h.robot(port, identity, tls=good) as robot:
             await robot.handshake()
             await robot.observe(0, *_observation(0))
             assert (await robot.next_chunk()).observation_id == "o0"
