@@ -26,6 +26,7 @@ import contextlib
 import itertools
 import logging
 import time
+from collections import deque
 from dataclasses import dataclass, field
 from typing import cast
 
@@ -75,6 +76,7 @@ log = logging.getLogger("sidecars.lerobot")
 
 HEARTBEAT_INTERVAL_S = 0.1
 HEARTBEAT_TIMEOUT_S = 1.0
+RECENT = 1000
 BUSY_CLOSE_CODE = 1013
 """Websocket "try again later": the sidecar serves another robot."""
 
@@ -91,8 +93,9 @@ class SidecarStats:
     replies_refused: int = 0
     last_refusal: str = ""
     empty_replies: int = 0
-    prepare_s: list[float] = field(default_factory=list)
-    inference_s: list[float] = field(default_factory=list)
+    prepare_s: deque[float] = field(default_factory=lambda: deque(maxlen=RECENT))
+    inference_s: deque[float] = field(default_factory=lambda: deque(maxlen=RECENT))
+    """The latest round trips to LeRobot (a sidecar runs for days: only the recent ones)."""
 
 
 class Sidecar:
