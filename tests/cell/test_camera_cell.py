@@ -17,6 +17,7 @@ import pytest
 
 from drivers.camera import frame_digest
 from kernel.cli import main
+from kernel.export import export_mcap
 from tests.cell.harness import MANIFESTS, replays_identically, run_dir
 
 pytestmark = pytest.mark.slow
@@ -88,6 +89,14 @@ def test_the_cell_verifies_its_cycle_seeing_through_both_rendered_cameras(
     assert not [line for line in _lines(directory, "decisions.jsonl")
                 if line["kind"] == "camera"]  # never lost
     assert replays_identically(directory)
+    # `warden export --mcap`: every kept picture is a CompressedImage on its camera's topic.
+    counts = export_mcap(directory, tmp_path / "run.mcap")
+    on_disk = {(f["camera"], f["digest"]) for o in observations for f in o["frames"]
+               if (directory / "frames" / f["camera"] / f"{f['digest']}.png").is_file()}
+    sent = [(f["camera"], f["digest"]) for o in observations for f in o["frames"]]
+    for camera in ("wrist_rgb", "scene_rgb"):
+        assert counts[f"/camera/{camera}"] == sum(
+            1 for key in sent if key[0] == camera and key in on_disk) > 0
 
 
 def _video(path: Path, frames: int) -> Path:
