@@ -36,6 +36,8 @@ from kernel.summary import RunSummary
 from skills.phases import TaskPhase
 
 AGE_BUCKETS_MS = (2.0, 5.0, 10.0, 20.0, 50.0, 100.0, 200.0, 500.0, 1000.0)
+LATENCY_BUCKETS_MS = (1.0, 2.0, 5.0, 10.0, 20.0, 50.0, 100.0, 200.0, 500.0)
+"""A fallback transition, from its trigger to the first tick that commands the new mode."""
 PROJECTION_BUCKETS_RAD = (1e-5, 1e-4, 1e-3, 3e-3, 1e-2, 3e-2, 0.1)
 LINK_COUNTERS = tuple(f.name for f in fields(LinkCounters))
 
@@ -73,6 +75,7 @@ class MetricsLayout:
                             ("decisions", len(layout.decisions)),
                             ("refusals", len(layout.phases) * len(layout.reasons)),
                             ("transitions", len(layout.modes) ** 2),
+                            ("triggers", len(layout.reasons)),
                             ("links", len(layout.links))):
             layout.slots[name] = at
             at += count
@@ -80,12 +83,26 @@ class MetricsLayout:
                               ("projection", PROJECTION_BUCKETS_RAD)):
             layout.slots[name] = at
             at += len(buckets) + 2
+        layout.slots["latency"] = at  # one histogram per mode a transition went to
+        at += len(layout.modes) * (len(LATENCY_BUCKETS_MS) + 2)
         object.__setattr__(layout, "size", at)
         return layout
 
     def histogram(self, name: str) -> Histogram:
         buckets = AGE_BUCKETS_MS if name == "action_age" else PROJECTION_BUCKETS_RAD
         return Histogram(buckets, self.slots[name])
+
+    def latency(self, to_mode: str) -> Histogram | None:
+        """The transition-latency histogram of the mode a transition went to."""
+        if to_mode not in self.modes:
+            return None
+        width = len(LATENCY_BUCKETS_MS) + 2
+        return Histogram(LATENCY_BUCKETS_MS,
+                         self.slots["latency"] + self.modes.index(to_mode) * width)
+
+    def trigger(self, reason: str) -> int | None:
+        return self.slots["triggers"] + self.reasons.index(reason) if (
+            reason in self.reasons) else None
 
     def refusal(self, phase: str, reason: str) -> int | None:
         if phase not in self.phases or reason not in self.reasons:
@@ -138,7 +155,7 @@ class MetricsPublisher:
 
     def __init__(self, block: MetricsBlock) -> None:
         self.block = block
-        self._seen = {"action_age": 0, "projection": 0, "transitions": 0}
+        self._seen = {"action_age": 0, "projection": 0, "transitions": 0, "latency": 0}
 
     def publish(self, summary: RunSummary, links: Mapping[str, int],
                 loop: Mapping[str, int]) -> None:
@@ -167,11 +184,25 @@ class MetricsPublisher:
         values[slots["published"]] += 1
 
     def _transitions(self, transitions: list[dict[str, object]]) -> None:
+        values = self.block.values
         for record in transitions[self._seen["transitions"]:]:
-            slot = LAYOUT.transition(str(record["from"]), str(record["to"]))
-            if slot is not None:
-                self.block.values[slot] += 1
+            for slot in (LAYOUT.transition(str(record["from"]), str(record["to"])),
+                         LAYOUT.trigger(str(record["trigger"]))):
+                if slot is not None:
+                    values[slot] += 1
         self._seen["transitions"] = len(transitions)
+        # A transition's latency is known once a tick commands its mode: count those in order,
+        # stopping at the first still waiting (the run's summary fills it in later).
+        for record in transitions[self._seen["latency"]:]:
+            latency = record.get("latency_ms")
+            if latency is None:
+                break
+            histogram = LAYOUT.latency(str(record["to"]))
+            if histogram is not None:
+                at = histogram.at + int(np.searchsorted(histogram.buckets, float(latency)))
+                values[at] += 1
+                values[histogram.at + histogram.width - 1] += float(latency)
+            self._seen["latency"] += 1
 
     def _observe(self, name: str, observed: list[float]) -> None:
         """Bucket what is new, in one vectorised pass (a publish every 5 s at 500 Hz reads

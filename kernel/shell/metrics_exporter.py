@@ -62,6 +62,10 @@ def families(values: np.ndarray) -> list[CounterMetricFamily | GaugeMetricFamily
                          [(p, r) for p in LAYOUT.phases for r in LAYOUT.reasons], sparse=True))
     out.append(_labelled(values, "transitions", "fallback transitions", ["from_mode", "to_mode"],
                          [(a, b) for a in LAYOUT.modes for b in LAYOUT.modes], sparse=True))
+    out.append(_labelled(values, "triggers", "fallback transitions, by trigger (reason code)",
+                         ["trigger"], [(r,) for r in LAYOUT.reasons], sparse=True,
+                         name="fallback_triggers"))
+    out.append(_latencies(values))
     out.append(_labelled(values, "links", "policy link counters", ["counter"],
                          [(n,) for n in LAYOUT.links], name="link_events"))
     out.append(_histogram(values, "action_age", "age of the action sent at a tick, ms",
@@ -87,12 +91,33 @@ def _histogram(values: np.ndarray, slot: str, documentation: str,
                name: str) -> HistogramMetricFamily:
     histogram = LAYOUT.histogram(slot)
     counts = values[histogram.at:histogram.at + len(histogram.buckets) + 1]
-    cumulative = np.cumsum(counts)
-    buckets = [(f"{bound:g}", float(total)) for bound, total in
-               zip(histogram.buckets, cumulative[:-1], strict=True)]
-    buckets.append(("+Inf", float(cumulative[-1])))
+    buckets = _cumulative(histogram.buckets, counts)
     return HistogramMetricFamily(PREFIX + name, documentation, buckets=buckets,
                                  sum_value=float(values[histogram.at + histogram.width - 1]))
+
+
+def _latencies(values: np.ndarray) -> HistogramMetricFamily:
+    family = HistogramMetricFamily(
+        PREFIX + "fallback_latency_ms", "a fallback transition's trigger to the first tick "
+        "commanding its mode, ms, by the mode it went to", labels=["to_mode"])
+    for mode in LAYOUT.modes:
+        histogram = LAYOUT.latency(mode)
+        if histogram is None:
+            continue
+        counts = values[histogram.at:histogram.at + len(histogram.buckets) + 1]
+        if not counts.any():
+            continue  # a mode never entered: no series
+        family.add_metric([mode], _cumulative(histogram.buckets, counts),
+                          sum_value=float(values[histogram.at + histogram.width - 1]))
+    return family
+
+
+def _cumulative(bounds: tuple[float, ...], counts: np.ndarray) -> list[tuple[str, float]]:
+    cumulative = np.cumsum(counts)
+    buckets = [(f"{bound:g}", float(total)) for bound, total in
+               zip(bounds, cumulative[:-1], strict=True)]
+    buckets.append(("+Inf", float(cumulative[-1])))
+    return buckets
 
 
 class _Server(ThreadingMixIn, WSGIServer):

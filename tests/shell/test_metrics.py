@@ -92,8 +92,34 @@ def test_a_publish_adds_only_what_happened_since_the_last(block: MetricsBlock) -
     assert value(metrics, "warden_metrics_publishes_total") == 3
 
 
+def test_fallback_triggers_and_latencies_once_a_tick_commands_the_mode(
+        block: MetricsBlock) -> None:
+    """A transition's latency is filled in by the summary when a tick commands the new mode:
+    it is counted then, once, in the histogram of the mode it went to."""
+    publisher, run = MetricsPublisher(block), RunSummary()
+    run.transitions += [
+        {"t": 1.0, "from": "RUNNING", "to": "SAFE_HOLD", "trigger": "STATE_DIVERGED"},
+        {"t": 9.0, "from": "SAFE_HOLD", "to": "RUNNING", "trigger": "RECOVERY_ACCEPTED"}]
+    run.transitions[0]["latency_ms"] = 1.5
+    publisher.publish(run, {}, {})
+    metrics = scraped(block)
+    assert value(metrics, "warden_fallback_triggers_total", trigger="RECOVERY_ACCEPTED") == 1
+    assert value(metrics, "warden_fallback_latency_ms_count", to_mode="SAFE_HOLD") == 1
+    assert value(metrics, "warden_fallback_latency_ms_bucket", to_mode="SAFE_HOLD", le="2") == 1
+    assert ("warden_fallback_latency_ms_count", frozenset({("to_mode", "RUNNING")})) not in (
+        metrics)  # its latency is not known yet
+    run.transitions[1]["latency_ms"] = 0.0
+    publisher.publish(run, {}, {})
+    publisher.publish(run, {}, {})
+    metrics = scraped(block)
+    assert value(metrics, "warden_fallback_latency_ms_count", to_mode="RUNNING") == 1
+    assert value(metrics, "warden_fallback_latency_ms_count", to_mode="SAFE_HOLD") == 1
+
+
 def test_the_layout_is_bounded_by_the_enums() -> None:
-    assert LAYOUT.size == LAYOUT.slots["projection"] + LAYOUT.histogram("projection").width
+    last = LAYOUT.latency(LAYOUT.modes[-1])
+    assert last is not None and LAYOUT.size == last.at + last.width
+    assert LAYOUT.latency("made up") is None and LAYOUT.trigger("made up") is None
     assert LAYOUT.refusal("PRE_CONTACT", "made up") is None
     assert LAYOUT.transition("RUNNING", "made up") is None
     assert LAYOUT.histogram("action_age").buckets == AGE_BUCKETS_MS
