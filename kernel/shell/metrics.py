@@ -22,7 +22,7 @@ import socket
 import subprocess
 import sys
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, fields
 from multiprocessing import resource_tracker, shared_memory
 
 import numpy as np
@@ -57,36 +57,31 @@ class Histogram:
 class MetricsLayout:
     """Where each number lives in the block: the same on both sides of it."""
 
+    slots: dict[str, int]
+    """Each metric's first slot."""
+    size: int
     phases: tuple[str, ...] = tuple(TaskPhase)
     reasons: tuple[str, ...] = tuple(ReasonCode)
     decisions: tuple[str, ...] = tuple(Decision)
     modes: tuple[str, ...] = tuple(Mode)
     links: tuple[str, ...] = LINK_COUNTERS
-    slots: dict[str, int] = field(default_factory=dict)
-    size: int = 0
 
     @classmethod
     def build(cls) -> MetricsLayout:
-        layout = cls()
-        at = 0
-        for name, count in (("ticks", 1), ("requests", 1), ("queue_depth", 1),
-                            ("journal_gaps", 1), ("deadline_misses", 1), ("published", 1),
-                            ("proposals", len(layout.phases)),
-                            ("decisions", len(layout.decisions)),
-                            ("refusals", len(layout.phases) * len(layout.reasons)),
-                            ("transitions", len(layout.modes) ** 2),
-                            ("triggers", len(layout.reasons)),
-                            ("links", len(layout.links))):
-            layout.slots[name] = at
-            at += count
-        for name, buckets in (("action_age", AGE_BUCKETS_MS),
-                              ("projection", PROJECTION_BUCKETS_RAD)):
-            layout.slots[name] = at
-            at += len(buckets) + 2
-        layout.slots["latency"] = at  # one histogram per mode a transition went to
-        at += len(layout.modes) * (len(LATENCY_BUCKETS_MS) + 2)
-        object.__setattr__(layout, "size", at)
-        return layout
+        phases, reasons, modes = len(TaskPhase), len(ReasonCode), len(Mode)
+        widths = (("ticks", 1), ("requests", 1), ("queue_depth", 1), ("journal_gaps", 1),
+                  ("deadline_misses", 1), ("published", 1), ("proposals", phases),
+                  ("decisions", len(Decision)), ("refusals", phases * reasons),
+                  ("transitions", modes ** 2), ("triggers", reasons),
+                  ("links", len(LINK_COUNTERS)),
+                  ("action_age", len(AGE_BUCKETS_MS) + 2),
+                  ("projection", len(PROJECTION_BUCKETS_RAD) + 2),
+                  ("latency", modes * (len(LATENCY_BUCKETS_MS) + 2)))  # a histogram per mode
+        slots, at = {}, 0
+        for name, width in widths:
+            slots[name] = at
+            at += width
+        return cls(slots=slots, size=at)
 
     def histogram(self, name: str) -> Histogram:
         buckets = AGE_BUCKETS_MS if name == "action_age" else PROJECTION_BUCKETS_RAD
