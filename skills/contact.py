@@ -171,12 +171,8 @@ class ContactOwner:
             raise ValueError(f"a descent from {z_start:.3f} m to {descent.z_end:.3f} m is longer "
                              f"than {MAX_DESCENT_M} m")
         count = max(1, math.ceil(max(z_start - descent.z_end, 0.0) / step_m))
-        rows = np.empty((count, current.shape[0]))
-        for k in range(count):
-            z = z_start + (descent.z_end - z_start) * (k + 1) / count
-            target = Pose(np.array([descent.xy[0], descent.xy[1], z]), descent.rotation)
-            current = rows[k] = kin.solve(target, current).q
-        return rows
+        heights = [z_start + (descent.z_end - z_start) * (k + 1) / count for k in range(count)]
+        return _solve_along(kin, current, descent.xy, descent.rotation, heights)
 
     def reset(self) -> None:
         """A new cycle: nothing to descend, hold or retreat from."""
@@ -239,16 +235,10 @@ class ContactOwner:
         end, each solved from the one before as the law solves them (what a clearance check
         looks at before the retreat may start); one row, where it is, when it has nowhere to
         go."""
-        kin = self._kinematics()
         rise = max(plan.z_start - plan.z, 0.0)
         count = max(1, math.ceil(rise / step_m - 1e-9))  # 2 cm in 5 mm steps: 4, not 5
-        current = plan.q.copy()
-        rows = np.empty((count, current.shape[0]))
-        for k in range(count):
-            z = plan.z + rise * (k + 1) / count
-            current = rows[k] = kin.solve(Pose(np.array([*plan.xy, z]), plan.rotation),
-                                          current).q
-        return rows
+        heights = [plan.z + rise * (k + 1) / count for k in range(count)]
+        return _solve_along(self._kinematics(), plan.q, plan.xy, plan.rotation, heights)
 
     def step(self, now_ns: int, dt_s: float, force_norm: float,
              bounded_target: np.ndarray | None = None) -> ContactCommand:
@@ -288,3 +278,16 @@ class ContactOwner:
         if self.kin is None:
             raise NoKinematics("no kinematic model: the contact owner can only hold")
         return self.kin
+
+
+def _solve_along(kin: ArmKinematics, q: np.ndarray, xy: np.ndarray, rotation: np.ndarray,
+                 heights: list[float]) -> np.ndarray:
+    """The configurations at each of ``heights`` on the vertical through ``xy``, the tool at
+    ``rotation``, each solved from the one before (from ``q`` first), as the law solves its
+    targets: the paths a descent's and a retreat's checks look at."""
+    current = np.asarray(q, dtype=float).copy()
+    rows = np.empty((len(heights), current.shape[0]))
+    for k, z in enumerate(heights):
+        target = Pose(np.array([xy[0], xy[1], z]), rotation)
+        current = rows[k] = kin.solve(target, current).q
+    return rows

@@ -81,7 +81,10 @@ def retreat_checked(m: MotionState, result: ClearanceResult, t: int,
 
 def drop_retreat(m: MotionState, t: int, emit: Callable[[Line], None]) -> None:
     """The contact owner is no longer asked to retreat: a check still pending is refused, and
-    a refusal is forgotten (the next contact fallback asks again)."""
+    a refusal is forgotten (the next contact fallback asks again). Called on every tick that
+    is not a contact retreat: nothing to forget is the common case, and costs one test."""
+    if m.retreat_plan is None and not (m.retreat_refused or m.retreat_retry_at):
+        return  # a pending check always has its plan
     if m.retreat_check is not None:
         _line(t, emit, "superseded: the retreat is no longer commanded")
     m.retreat_check, m.retreat_plan, m.retreat_refused = None, None, False
